@@ -1,0 +1,15 @@
+"""mjdrive: driving-simulation suite for RL research on MuJoCo."""
+
+from __future__ import annotations
+
+import os as _os
+
+# Off-screen rendering needs a GL backend chosen before mujoco is imported; EGL is the default
+# on headless machines, OSMesa the fallback (set MUJOCO_GL=osmesa yourself to force it).
+_os.environ.setdefault("MUJOCO_GL", "egl")
+
+from pathlib import Path as _Path  # noqa: E402
+
+XML_DIR = _Path(__file__).resolve().parent / "xml"  # MJCF assets: vehicles/, scenes/
+
+__version__ = "0.1.0"
