@@ -13,3 +13,8 @@ from pathlib import Path as _Path  # noqa: E402
 XML_DIR = _Path(__file__).resolve().parent / "xml"  # MJCF assets: vehicles/, scenes/
 
 __version__ = "0.1.0"
+
+# Register the gymnasium ids (cheap: entry points are strings, nothing heavy is imported here).
+from mjdrive.envs.registration import register_all as _register_all  # noqa: E402
+
+_register_all()

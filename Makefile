@@ -1,0 +1,40 @@
+# Two commands on a fresh Debian machine (root): `make run` and `make test`. Each installs what it needs first.
+PYTHON ?= python3
+PIP := $(PYTHON) -m pip
+STAMP := .make
+export MUJOCO_GL ?= egl
+export PYTHONUNBUFFERED := 1
+
+.PHONY: install system run test bench lint clean
+
+# Debian packages for off-screen GL: EGL (default) and OSMesa (fallback, MUJOCO_GL=osmesa).
+$(STAMP)/system:
+	@mkdir -p $(STAMP)
+	@if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
+	    libegl1 libopengl0 libgl1-mesa-dri libosmesa6 >/dev/null; \
+	else echo "not root or no apt-get: make sure libegl1 libopengl0 libgl1-mesa-dri (or libosmesa6) are installed"; fi
+	@touch $@
+
+# torch first and pinned (an unpinned torch pulls GBs of CUDA packages), then the project.
+$(STAMP)/python: pyproject.toml $(STAMP)/system
+	$(PIP) install -q torch==2.13.0
+	$(PIP) install -q -e ".[learn,dev]"
+	@touch $@
+
+install: $(STAMP)/python
+
+run: install
+	$(PYTHON) -m mjdrive.cli run --task waypoints/four_routes --episodes 2 --out runs/demo
+
+test: install
+	$(PYTHON) -m pytest -q
+
+bench: install
+	$(PYTHON) -m mjdrive.cli bench --out results/bench.md
+
+lint:
+	ruff check .
+
+clean:
+	rm -rf $(STAMP) runs .pytest_cache

@@ -1,0 +1,52 @@
+"""Discrete action tables of the studies, as gymnasium wrappers over (throttle, steer, brake)."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+
+KEEP = np.nan  # in a table's steer column: keep the previous steer command
+
+# Study 004, Table 1: throttle 0.5 with steer -0.1 / 0 / 0.1, or coast (throttle 0) keeping the last steer.
+TABLE1 = np.array([[0.5, -0.1, 0.0], [0.5, 0.0, 0.0], [0.5, 0.1, 0.0], [0.0, KEEP, 0.0]])
+# Study 004, Table 2: throttle {0, 0.5, 1} x steer {-1, -0.75, ..., 1}.
+TABLE2 = np.array([[t, s, 0.0] for t in (0.0, 0.5, 1.0) for s in np.linspace(-1.0, 1.0, 9)])
+# Study 000, Table 1: DQN's a0..a6 as (throttle, steer, brake).
+ROUNDABOUT7 = np.array([
+    [0.6, 0.0, 0.0], [0.5, -0.5, 0.0], [0.5, 0.5, 0.0], [0.3, 0.0, 0.0],
+    [0.3, -0.5, 0.5], [0.3, 0.5, 0.0], [0.0, 0.0, 0.5],
+])
+ACTION_TABLES = {"table1": TABLE1, "table2": TABLE2, "roundabout7": ROUNDABOUT7}
+
+
+class DiscreteActions(gym.ActionWrapper):
+    """Maps a discrete action index to a row (throttle, steer, brake) of `table`."""
+
+    def __init__(self, env: gym.Env, table: np.ndarray):
+        super().__init__(env)
+        self.table = np.asarray(table, np.float64)
+        self.action_space = gym.spaces.Discrete(len(self.table))
+        self._last_steer = 0.0
+
+    def reset(self, **kwargs):
+        self._last_steer = 0.0
+        return self.env.reset(**kwargs)
+
+    def action(self, action) -> np.ndarray:
+        index = int(action)
+        if not 0 <= index < len(self.table):
+            raise ValueError(f"action index must be in [0, {len(self.table) - 1}], got {action!r}")
+        command = self.table[index].copy()
+        if np.isnan(command[1]):
+            command[1] = self._last_steer
+        self._last_steer = command[1]
+        return command.astype(np.float32)
+
+
+def wrap_actions(env: gym.Env, actions: str) -> gym.Env:
+    """"continuous" leaves the env as is; a table name from ACTION_TABLES wraps it."""
+    if actions == "continuous":
+        return env
+    if actions not in ACTION_TABLES:
+        raise ValueError(f"unknown action set {actions!r}; valid: continuous, {', '.join(ACTION_TABLES)}")
+    return DiscreteActions(env, ACTION_TABLES[actions])

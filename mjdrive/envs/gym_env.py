@@ -1,0 +1,96 @@
+"""gymnasium Env over a dm_control driving task."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import dm_env
+import gymnasium as gym
+import numpy as np
+from dm_env import specs
+
+from mjdrive import suite
+from mjdrive.envs.actions import wrap_actions
+
+
+def spec_to_space(spec: specs.Array) -> gym.spaces.Box:
+    """A gymnasium Box for a dm_env array spec (bounded or not)."""
+    if isinstance(spec, specs.BoundedArray):
+        low = np.broadcast_to(spec.minimum, spec.shape).astype(spec.dtype)
+        high = np.broadcast_to(spec.maximum, spec.shape).astype(spec.dtype)
+        return gym.spaces.Box(low, high, spec.shape, spec.dtype)
+    return gym.spaces.Box(-np.inf, np.inf, spec.shape, spec.dtype)
+
+
+class DrivingGymEnv(gym.Env):
+    """A dm_control task as a gymnasium Env.
+
+    `terminated` is True when the task ended the episode (collision, lane invasion, arrival, physics
+    error); `truncated` when the time limit ran out. `info` carries the task's metrics
+    (route_completion, success, collision, ...). `reset(seed=s)` reseeds the task: same seed, same episode.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(
+        self,
+        domain: str,
+        task: str,
+        task_kwargs: dict[str, Any] | None = None,
+        environment_kwargs: dict[str, Any] | None = None,
+        render_mode: str | None = None,
+        render_camera: str = "ego/chase",
+        render_size: tuple[int, int] = (360, 640),  # (height, width) [px]
+    ):
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.domain, self.task_name = domain, task
+        self.task_kwargs = dict(task_kwargs or {})
+        self.dm_env = suite.load(domain, task, self.task_kwargs, environment_kwargs)
+        self.task = self.dm_env.task
+        self.observation_space = gym.spaces.Dict(
+            {name: spec_to_space(spec) for name, spec in self.dm_env.observation_spec().items()}
+        )
+        action_spec = self.dm_env.action_spec()
+        self.action_space = gym.spaces.Box(
+            action_spec.minimum.astype(np.float32), action_spec.maximum.astype(np.float32), dtype=np.float32
+        )
+        self.render_mode = render_mode
+        self.render_camera, self.render_size = render_camera, render_size
+        self.metadata = {**self.metadata, "render_fps": round(1.0 / self.dm_env.control_timestep())}
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        if seed is not None:
+            self.task.seed(seed)
+        timestep = self.dm_env.reset()
+        return dict(timestep.observation), dict(self.task.info)
+
+    def step(self, action):
+        action = np.asarray(action, dtype=np.float64)
+        if not np.all(np.isfinite(action)):
+            raise ValueError(f"action contains NaN or inf: {action}")
+        timestep = self.dm_env.step(action)
+        info = dict(self.task.info)
+        terminated = timestep.step_type == dm_env.StepType.LAST and timestep.discount == 0.0
+        truncated = timestep.step_type == dm_env.StepType.LAST and not terminated
+        info["time_limit"] = truncated
+        return dict(timestep.observation), float(timestep.reward or 0.0), terminated, truncated, info
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        height, width = self.render_size
+        return self.task.render_camera(self.dm_env.physics, self.render_camera, height, width).copy()
+
+    def close(self) -> None:
+        for camera in self.task.cameras.values():
+            camera.close()
+        self.task.cameras.clear()
+
+
+def make_env(domain: str, task: str, actions: str = "continuous", render_mode: str | None = None,
+             environment_kwargs: dict[str, Any] | None = None, **task_kwargs) -> gym.Env:
+    """Entry point of the gymnasium ids: a DrivingGymEnv with the chosen action set."""
+    env = DrivingGymEnv(domain, task, task_kwargs, environment_kwargs, render_mode=render_mode)
+    return wrap_actions(env, actions)

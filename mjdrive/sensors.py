@@ -1,0 +1,149 @@
+"""Sensors read from the simulation and the road map: collision, lane invasion, route progress, cameras.
+
+All of them look ids up once at construction and do numpy work per step (no name look-ups, no Python
+loops over contacts, vehicles or lanes).
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from mjdrive.roads import RoadMap
+
+
+def footprint(x: float, y: float, yaw: float, length: float, width: float) -> np.ndarray:
+    """The four corners (4,2) [m] of a vehicle's rectangle: front-left, front-right, rear-right, rear-left."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    local = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * (0.5 * length, 0.5 * width)
+    return np.column_stack([x + c * local[:, 0] - s * local[:, 1], y + s * local[:, 0] + c * local[:, 1]])
+
+
+def wrap_angle(angle):
+    """Wrap [rad] to [-pi, pi)."""
+    return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
+
+
+class CollisionSensor:
+    """Flags any contact between an ego geom and a geom that is not the ground (the road surface)."""
+
+    def __init__(self, model: mujoco.MjModel, prefix: str = "ego/", ground: str = "ground"):
+        root = model.body(prefix + "chassis").id
+        ego_body = model.body_rootid == root
+        self.is_ego_geom = ego_body[model.geom_bodyid]
+        self.is_other = ~self.is_ego_geom
+        self.is_other[model.geom(ground).id] = False
+        self.last_other_geom = -1  # geom id the ego touched last, for logs
+
+    def __call__(self, data: mujoco.MjData) -> bool:
+        if data.ncon == 0:
+            return False
+        g1, g2 = data.contact.geom1, data.contact.geom2
+        hit = (self.is_ego_geom[g1] & self.is_other[g2]) | (self.is_ego_geom[g2] & self.is_other[g1])
+        if not hit.any():
+            return False
+        k = int(np.argmax(hit))
+        self.last_other_geom = int(g2[k] if self.is_ego_geom[g1[k]] else g1[k])
+        return True
+
+
+class LaneInvasionSensor:
+    """Flags a crossing of a SOLID marking by any corner of the ego footprint since the previous call."""
+
+    def __init__(self, road_map: RoadMap):
+        self.road_map = road_map
+        self.previous: np.ndarray | None = None
+
+    def reset(self, corners: np.ndarray) -> None:
+        self.previous = corners.copy()
+
+    def __call__(self, corners: np.ndarray) -> bool:
+        crossed = self.previous is not None and bool(self.road_map.crossed_solid(self.previous, corners))
+        self.previous = corners
+        return crossed
+
+
+class RouteTracker:
+    """Waypoints along a route: which is next, which were reached (within `reach_radius`), completion.
+
+    A waypoint counts as reached when the ego comes within `reach_radius` [m] of it (the study's W); a
+    waypoint the ego passes farther away (its projection overtakes it) is skipped, not reached.
+    """
+
+    def __init__(self, points: np.ndarray, headings: np.ndarray, reach_radius: float = 3.0):
+        self.points = np.asarray(points, float)  # (M,2) [m]
+        self.headings = np.asarray(headings, float)  # (M,) [rad]
+        self.reach_radius = reach_radius
+        self.next_index = 0
+        self.reached = 0
+
+    @property
+    def total(self) -> int:
+        return len(self.points)
+
+    @property
+    def done(self) -> bool:
+        return self.next_index >= self.total
+
+    @property
+    def completion(self) -> float:
+        """Share of the route's waypoints reached, in [0, 1]."""
+        return self.reached / self.total
+
+    def update(self, xy: np.ndarray) -> bool:
+        """Advance past reached or overtaken waypoints; True if at least one was reached (W)."""
+        reached_any = False
+        while self.next_index < self.total:
+            delta = self.points[self.next_index] - xy
+            if delta @ delta <= self.reach_radius**2:
+                self.reached += 1
+                reached_any = True
+            else:
+                h = self.headings[self.next_index]
+                if delta[0] * np.cos(h) + delta[1] * np.sin(h) > 0.0:  # still ahead of the ego
+                    break
+            self.next_index += 1
+        return reached_any
+
+    def upcoming(self, count: int) -> np.ndarray:
+        """The next `count` waypoints (count,2), padded with the last one past the end of the route."""
+        idx = np.minimum(np.arange(self.next_index, self.next_index + count), self.total - 1)
+        return self.points[idx]
+
+
+class CameraRenderer:
+    """Off-screen RGB camera with shadows and reflections off, and optional waypoint markers.
+
+    Markers are drawn into the scene at render time only (they do not exist in the physics).
+    """
+
+    MARKER_RGBA = np.array([0.1, 0.9, 0.2, 1.0], np.float32)
+    MARKER_SIZE = np.array([0.35, 0.35, 0.02])  # [m] half sizes of the flat green rectangles
+
+    def __init__(self, model: mujoco.MjModel, camera: str, height: int, width: int):
+        self.renderer = mujoco.Renderer(model, height, width)
+        self.camera = model.camera(camera).id
+        self.buffer = np.empty((height, width, 3), np.uint8)
+        self._identity = np.eye(3).ravel()
+        scene = self.renderer.scene
+        scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
+        scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
+        scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = True
+
+    def render(self, data: mujoco.MjData, markers: np.ndarray | None = None, z: float = 0.03) -> np.ndarray:
+        """Render into the reused buffer; returns it (copy it if you keep it)."""
+        self.renderer.update_scene(data, self.camera)
+        scene = self.renderer.scene
+        if markers is not None:
+            for point in markers:
+                if scene.ngeom >= scene.maxgeom:
+                    break
+                mujoco.mjv_initGeom(
+                    scene.geoms[scene.ngeom], mujoco.mjtGeom.mjGEOM_BOX, self.MARKER_SIZE,
+                    np.array([point[0], point[1], z]), self._identity, self.MARKER_RGBA,
+                )
+                scene.ngeom += 1
+        return self.renderer.render(out=self.buffer)
+
+    def close(self) -> None:
+        self.renderer.close()

@@ -1,0 +1,117 @@
+"""What every driving task shares: the ego car, the action spec, safety sensors, episode info, and an
+Environment that turns physics blow-ups into an ended episode instead of an exception."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import dm_env
+import mujoco
+import numpy as np
+from dm_control import mujoco as dm_mujoco
+from dm_control.rl import control
+from dm_env import specs
+
+from mjdrive.roads import RoadMap
+from mjdrive.sensors import CameraRenderer, CollisionSensor, LaneInvasionSensor, footprint
+from mjdrive.vehicle import VEHICLES, Vehicle
+
+ACTION_NAMES = ("throttle", "steer", "brake")
+ACTION_SPEC = specs.BoundedArray(
+    (3,), np.float64, minimum=[0.0, -1.0, 0.0], maximum=[1.0, 1.0, 1.0], name="throttle,steer,brake"
+)
+
+
+class Physics(dm_mujoco.Physics):
+    """dm_control Physics; `raw_model`/`raw_data` are the mujoco structs used on the hot path."""
+
+    @property
+    def raw_model(self) -> mujoco.MjModel:
+        return self.model.ptr
+
+    @property
+    def raw_data(self) -> mujoco.MjData:
+        return self.data.ptr
+
+
+class DrivingTask(control.Task):
+    """Base task: ego vehicle bound to the model, throttle/steer/brake actions, collision and
+    lane-invasion sensors, and `info` (a dict of episode metrics refreshed every step)."""
+
+    def __init__(self, model: mujoco.MjModel, road_map: RoadMap, vehicle: str, random=None):
+        super().__init__()
+        self._random = random if isinstance(random, np.random.RandomState) else np.random.RandomState(random)
+        self.road_map = road_map
+        self.params = VEHICLES[vehicle]
+        self.vehicle = Vehicle(model, prefix="ego/")
+        self.collision_sensor = CollisionSensor(model)
+        self.lane_invasion_sensor = LaneInvasionSensor(road_map)
+        self.cameras: dict[tuple[str, int, int], CameraRenderer] = {}
+        self.info: dict[str, Any] = {}
+
+    @property
+    def random(self) -> np.random.RandomState:
+        return self._random
+
+    def seed(self, seed: int | None) -> None:
+        """Reseed the task's random stream (episode sampling)."""
+        self._random = np.random.RandomState(seed)
+
+    # --- actions ------------------------------------------------------------------------------------
+    def action_spec(self, physics: Physics) -> specs.BoundedArray:
+        return ACTION_SPEC
+
+    def before_step(self, action, physics: Physics) -> None:
+        action = np.asarray(action, dtype=np.float64)
+        if action.shape != (3,):
+            raise ValueError(f"action must have shape (3,) = (throttle, steer, brake), got {action.shape}")
+        self.vehicle.apply(physics.raw_data, action[0], action[1], action[2])
+        self.last_action = action
+
+    # --- ego state ----------------------------------------------------------------------------------
+    def ego_corners(self, physics: Physics) -> np.ndarray:
+        x, y, yaw = self.vehicle.pose(physics.raw_data)
+        return footprint(x, y, yaw, self.params.length, self.params.width)
+
+    def reset_safety_sensors(self, physics: Physics) -> None:
+        self.lane_invasion_sensor.reset(self.ego_corners(physics))
+        self.collision_sensor.last_other_geom = -1
+
+    def render_camera(self, physics: Physics, camera: str, height: int, width: int,
+                      markers: np.ndarray | None = None) -> np.ndarray:
+        """Off-screen render of `camera` (renderer created once per (camera, size))."""
+        key = (camera, height, width)
+        if key not in self.cameras:
+            self.cameras[key] = CameraRenderer(physics.raw_model, camera, height, width)
+        return self.cameras[key].render(physics.raw_data, markers)
+
+
+class DrivingEnvironment(control.Environment):
+    """dm_control Environment whose episode ends (discount 0, `info["physics_error"]`) when the
+    simulation becomes unstable, instead of raising and killing a training run."""
+
+    def __init__(self, physics: Physics, task: DrivingTask, **kwargs):
+        kwargs.setdefault("legacy_step", False)
+        super().__init__(physics, task, **kwargs)
+        self._last_observation = None
+
+    @property
+    def info(self) -> dict[str, Any]:
+        return self.task.info
+
+    def reset(self) -> dm_env.TimeStep:
+        timestep = super().reset()
+        self._last_observation = timestep.observation
+        return timestep
+
+    def step(self, action) -> dm_env.TimeStep:
+        if self._reset_next_step:
+            return self.reset()
+        try:
+            timestep = super().step(action)
+        except control.PhysicsError as error:
+            self._reset_next_step = True
+            self.task.info["physics_error"] = str(error)
+            return dm_env.TimeStep(dm_env.StepType.LAST, 0.0, 0.0, self._last_observation)
+        self._last_observation = timestep.observation
+        return timestep

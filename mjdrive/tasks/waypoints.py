@@ -1,0 +1,227 @@
+"""Waypoint following (study 004, Wedén 2023): drive along a route of waypoints without crossing solid
+markings or colliding.
+
+Observations (units as in the study, §3.2.1):
+  "features": waypoint_angles (15,) [deg] angles between the ego heading and the next 15 waypoints
+              (a queue, padded with the last waypoint), lane_offset d_c [m], heading_error θ [deg], speed v [km/h].
+  "camera":   image (128,128,3) uint8 front camera with the next few waypoints drawn as green markers,
+              waypoint_distance d [m], heading_error θ [deg], speed v [km/h].
+Rewards: (3.1)/(3.2) for "camera", (3.3) for "features"; v in km/h, W=1 when a waypoint is reached (<3 m),
+C collision, L solid marking crossed. Episodes end on collision, lane invasion, leaving the road,
+reaching the last waypoint, or the time limit (truncation).
+"""
+
+from __future__ import annotations
+
+import collections
+
+import numpy as np
+from dm_control.utils import containers
+from dm_env import specs
+
+from mjdrive import roads, world
+from mjdrive.roads import Lane, RoadMap
+from mjdrive.sensors import RouteTracker, wrap_angle
+from mjdrive.tasks.base import DrivingEnvironment, DrivingTask, Physics
+
+SUITE = containers.TaggedTasks()
+
+CONTROL_TIMESTEP = 0.1  # [s] 10 Hz
+N_WAYPOINT_ANGLES = 15
+REACH_RADIUS = 3.0  # [m] the study's W radius
+OBSERVATIONS = ("features", "camera")
+MIN_RANDOM_ROUTE = 80.0  # [m]
+
+
+class WaypointTask(DrivingTask):
+    """Follow the waypoints of one of `routes` (lists of lane ids), or of a random route if `routes` is None."""
+
+    def __init__(
+        self,
+        model,
+        road_map: RoadMap,
+        routes: list[list[int]] | None,
+        observation: str = "features",
+        vehicle: str = "sedan",
+        waypoint_spacing: float = 2.0,  # [m]
+        visible_waypoints: int = 3,
+        image_size: int = 128,  # [px]
+        random=None,
+    ):
+        if observation not in OBSERVATIONS:
+            raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
+        super().__init__(model, road_map, vehicle, random)
+        self.routes = routes
+        self.observation = observation
+        self.waypoint_spacing = waypoint_spacing
+        self.visible_waypoints = visible_waypoints
+        self.image_size = image_size
+        self.spawn_lanes = None if routes else [lane for lane, _ in roads.spawn_points(road_map)]
+        self.tracker: RouteTracker | None = None
+        self.route_lane: Lane | None = None
+
+    # --- episode ------------------------------------------------------------------------------------
+    def _sample_route(self) -> list[int]:
+        if self.routes:
+            return self.routes[self.random.randint(len(self.routes))]
+        for _ in range(100):
+            start, goal = self.random.choice(len(self.spawn_lanes), 2, replace=False)
+            try:
+                route = self.road_map.shortest_route(self.spawn_lanes[start], self.spawn_lanes[goal])
+            except ValueError:
+                continue
+            if sum(self.road_map.lanes[i].length for i in route) >= MIN_RANDOM_ROUTE:
+                return route
+        raise RuntimeError("could not sample a random route of at least %.0f m" % MIN_RANDOM_ROUTE)
+
+    def initialize_episode(self, physics: Physics) -> None:
+        route = self._sample_route()
+        points, headings = self.road_map.waypoints(route, self.waypoint_spacing)
+        self.route = route
+        self.route_lane = Lane(centre=self.road_map.route_polyline(route), name="route")
+        # The car starts on the first waypoint; the route's waypoints begin one spacing ahead of it.
+        self.vehicle.reset(physics.raw_data, points[0, 0], points[0, 1], headings[0])
+        self.tracker = RouteTracker(points[1:], headings[1:], REACH_RADIUS)
+        self.reset_safety_sensors(physics)
+        self.info = {
+            "route_completion": 0.0, "waypoints_reached": 0, "waypoints_total": self.tracker.total,
+            "collision": False, "lane_invasion": False, "off_road": False, "success": False,
+            "physics_error": None, "elapsed_time": 0.0, "distance": 0.0,
+        }
+        self._step_reward = 0.0
+        self._update_lane_frame(physics)
+
+    def _update_lane_frame(self, physics: Physics) -> None:
+        x, y, yaw = self.vehicle.pose(physics.raw_data)
+        self.xy = np.array([x, y])
+        s, d = self.route_lane.local_coordinates(self.xy)
+        self.lane_offset = float(d)  # [m] d_c, > 0 left of the lane centre
+        self.heading_error = float(wrap_angle(yaw - self.route_lane.heading(s)))  # [rad]
+        self.yaw = yaw
+        self.speed = float(self.vehicle.speed(physics.raw_data))  # [m/s]
+
+    def after_step(self, physics: Physics) -> None:
+        previous_xy = self.xy
+        self._update_lane_frame(physics)
+        info = self.info
+        waypoint_reached = self.tracker.update(self.xy)
+        collision = self.collision_sensor(physics.raw_data)
+        invasion = self.lane_invasion_sensor(self.ego_corners(physics))
+        off_road = not bool(self.road_map.on_road(self.xy))
+        info["collision"] |= collision
+        info["lane_invasion"] |= invasion
+        info["off_road"] |= off_road
+        info["waypoints_reached"] = self.tracker.reached
+        info["route_completion"] = self.tracker.completion
+        info["success"] = self.tracker.done and not (info["collision"] or info["lane_invasion"])
+        info["elapsed_time"] = float(physics.data.time)
+        info["distance"] += float(np.hypot(*(self.xy - previous_xy)))
+        self._step_reward = self._reward(waypoint_reached, collision, invasion)
+
+    def _reward(self, waypoint: bool, collision: bool, invasion: bool) -> float:
+        v = self.speed * 3.6  # [km/h]
+        theta = self.heading_error
+        bonus = 100.0 * waypoint - 200.0 * collision - 200.0 * invasion
+        if self.observation == "camera":  # (3.1) below the limit, (3.2) above it
+            limit = self.road_map.lanes[self.route[0]].speed_limit * 3.6
+            return (v * np.cos(theta) if v < limit else -v) + bonus
+        # (3.3)
+        return abs(v * np.cos(theta)) - abs(v * np.sin(theta)) - abs(v) * abs(self.lane_offset) + bonus
+
+    def get_reward(self, physics: Physics) -> float:
+        return float(self._step_reward)
+
+    def get_termination(self, physics: Physics) -> float | None:
+        info = self.info
+        if info["collision"] or info["lane_invasion"] or info["off_road"] or self.tracker.done:
+            return 0.0
+        return None
+
+    # --- observation --------------------------------------------------------------------------------
+    def observation_spec(self, physics: Physics) -> collections.OrderedDict:
+        scalar = {name: specs.Array((1,), np.float32, name)
+                  for name in ("lane_offset", "heading_error", "speed", "waypoint_distance")}
+        if self.observation == "camera":
+            size = self.image_size
+            return collections.OrderedDict(
+                image=specs.BoundedArray((size, size, 3), np.uint8, 0, 255, "image"),
+                waypoint_distance=scalar["waypoint_distance"],
+                heading_error=scalar["heading_error"], speed=scalar["speed"],
+            )
+        return collections.OrderedDict(
+            waypoint_angles=specs.Array((N_WAYPOINT_ANGLES,), np.float32, "waypoint_angles"),
+            lane_offset=scalar["lane_offset"], heading_error=scalar["heading_error"], speed=scalar["speed"],
+        )
+
+    def get_observation(self, physics: Physics) -> collections.OrderedDict:
+        theta = np.float32(np.degrees(self.heading_error))
+        speed = np.float32(self.speed * 3.6)
+        obs = collections.OrderedDict()
+        if self.observation == "camera":
+            k = self.tracker.next_index
+            markers = self.tracker.points[k : k + self.visible_waypoints]  # only the next few, as §5 wished
+            size = self.image_size
+            obs["image"] = self.render_camera(physics, "ego/front", size, size, markers).copy()
+            nearest = self.tracker.upcoming(1)[0] - self.xy
+            obs["waypoint_distance"] = np.array([np.hypot(*nearest)], np.float32)
+        else:
+            delta = self.tracker.upcoming(N_WAYPOINT_ANGLES) - self.xy
+            angles = wrap_angle(np.arctan2(delta[:, 1], delta[:, 0]) - self.yaw)
+            obs["waypoint_angles"] = np.degrees(angles).astype(np.float32)
+            obs["lane_offset"] = np.array([self.lane_offset], np.float32)
+        obs["heading_error"] = np.array([theta], np.float32)
+        obs["speed"] = np.array([speed], np.float32)
+        return obs
+
+
+# --- registered tasks -----------------------------------------------------------------------------------
+
+_CRAFTED = None
+
+
+def _crafted():
+    """The crafted-routes map and its routes (built once per process; maps are immutable data)."""
+    global _CRAFTED
+    if _CRAFTED is None:
+        _CRAFTED = roads.crafted_routes()
+    return _CRAFTED
+
+
+def _make(road_map, routes, time_limit, observation, buildings, vehicle, random, environment_kwargs,
+          **task_kwargs) -> DrivingEnvironment:
+    seed = random if isinstance(random, int) else 0
+    model = world.build(road_map, vehicle=vehicle, buildings=buildings, seed=seed)
+    physics = Physics.from_model(model)
+    task = WaypointTask(model, road_map, routes, observation=observation, vehicle=vehicle, random=random,
+                        **task_kwargs)
+    environment_kwargs = dict(environment_kwargs or {})
+    environment_kwargs.setdefault("control_timestep", CONTROL_TIMESTEP)
+    return DrivingEnvironment(physics, task, time_limit=time_limit, **environment_kwargs)
+
+
+@SUITE.add("study004", "crafted", "evaluation")
+def straight(time_limit=20.0, observation="features", buildings=False, vehicle="sedan", random=None,
+             environment_kwargs=None, **task_kwargs):
+    """The study's evaluation route: a straight lane of ~100 m, 20 s limit."""
+    road_map, routes = _crafted()
+    return _make(road_map, [routes["straight"]], time_limit, observation, buildings, vehicle, random,
+                 environment_kwargs, **task_kwargs)
+
+
+@SUITE.add("study004", "crafted")
+def four_routes(time_limit=30.0, observation="features", buildings=False, vehicle="sedan", random=None,
+                environment_kwargs=None, **task_kwargs):
+    """The four crafted routes (sharp left in a junction, straight, soft right, soft left), one per episode."""
+    road_map, routes = _crafted()
+    chosen = [routes[name] for name in ("left_turn", "straight", "soft_right", "soft_left")]
+    return _make(road_map, chosen, time_limit, observation, buildings, vehicle, random, environment_kwargs,
+                 **task_kwargs)
+
+
+@SUITE.add("study004", "random")
+def random_routes(time_limit=60.0, observation="features", buildings=False, vehicle="sedan", random=None,
+                  environment_kwargs=None, town_blocks=(3, 3), **task_kwargs):
+    """Random start and destination in a small town of junctions (a new route every episode)."""
+    road_map = roads.town(blocks=tuple(town_blocks))
+    return _make(road_map, None, time_limit, observation, buildings, vehicle, random, environment_kwargs,
+                 **task_kwargs)
