@@ -6,6 +6,9 @@ loops over contacts, vehicles or lanes).
 
 from __future__ import annotations
 
+import atexit
+import weakref
+
 import mujoco
 import numpy as np
 
@@ -111,6 +114,15 @@ class RouteTracker:
         return self.points[idx]
 
 
+_OPEN_RENDERERS: weakref.WeakSet = weakref.WeakSet()
+
+
+def _close_renderers() -> None:
+    """Free GL contexts before the GL library itself is torn down at exit (avoids EGL errors)."""
+    for renderer in list(_OPEN_RENDERERS):
+        renderer.close()
+
+
 class CameraRenderer:
     """Off-screen RGB camera with shadows and reflections off, and optional waypoint markers.
 
@@ -124,7 +136,12 @@ class CameraRenderer:
         self.renderer = mujoco.Renderer(model, height, width)
         self.camera = model.camera(camera).id
         self.buffer = np.empty((height, width, 3), np.uint8)
+        if not _OPEN_RENDERERS:  # registered after the GL backend's own exit handler, so it runs first
+            atexit.unregister(_close_renderers)
+            atexit.register(_close_renderers)
+        _OPEN_RENDERERS.add(self)
         self._identity = np.eye(3).ravel()
+        self._warm = False
         scene = self.renderer.scene
         scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
         scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
@@ -132,6 +149,10 @@ class CameraRenderer:
 
     def render(self, data: mujoco.MjData, markers: np.ndarray | None = None, z: float = 0.03) -> np.ndarray:
         """Render into the reused buffer; returns it (copy it if you keep it)."""
+        if not self._warm:  # a context's very first frame differs from all later ones: discard it
+            self.renderer.update_scene(data, self.camera)
+            self.renderer.render(out=self.buffer)
+            self._warm = True
         self.renderer.update_scene(data, self.camera)
         scene = self.renderer.scene
         if markers is not None:
@@ -146,4 +167,7 @@ class CameraRenderer:
         return self.renderer.render(out=self.buffer)
 
     def close(self) -> None:
-        self.renderer.close()
+        if self.renderer is not None:
+            self.renderer.close()
+            self.renderer = None
+        _OPEN_RENDERERS.discard(self)

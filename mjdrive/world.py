@@ -22,6 +22,7 @@ ROAD_Z = 0.004  # [m] height of the road surface mesh above the ground plane
 MARKING_Z = 0.008  # [m] height of the marking meshes
 MARKING_WIDTH = 0.15  # [m]
 DASH_ON, DASH_OFF = 3.0, 6.0  # [m] broken-line pattern
+NEAR_CLIP, FAR_CLIP = 0.1, 400.0  # [m] camera clip planes
 OBSTACLE_CONTYPE = 2  # collision bit shared by obstacles, traffic and the ego body (not the ground)
 
 ASPHALT_RGBA = (0.32, 0.32, 0.34, 1.0)
@@ -63,7 +64,7 @@ def build_spec(
             _add_buildings(spec, road_map, np.random.default_rng(seed))
     add_vehicle(spec, vehicle, prefix="ego/")
     chassis = spec.body("ego/chassis")
-    top = chassis.add_camera(name="top", pos=[0, 0, 45], mode=mujoco.mjtCamLight.mjCAMLIGHT_TRACK)
+    top = chassis.add_camera(name="ego/top", pos=[0, 0, 45], mode=mujoco.mjtCamLight.mjCAMLIGHT_TRACK)
     top.fovy = 60
     for i, slot in enumerate(traffic):
         body = spec.worldbody.add_body(name=f"traffic_{i}", mocap=True, pos=[0, 0, -50.0 - 5 * i])
@@ -84,7 +85,11 @@ def build(
     seed: int = 0,
 ) -> mujoco.MjModel:
     """Compile the world of `build_spec` into an MjModel (once per task instance, not per episode)."""
-    return build_spec(road_map, vehicle, buildings, traffic, timestep, seed).compile()
+    model = build_spec(road_map, vehicle, buildings, traffic, timestep, seed).compile()
+    # Clip planes are relative to the model's extent, which a large map inflates: keep them metric.
+    model.vis.map.znear = NEAR_CLIP / model.stat.extent
+    model.vis.map.zfar = FAR_CLIP / model.stat.extent
+    return model
 
 
 # --- meshes -------------------------------------------------------------------------------------------

@@ -43,7 +43,7 @@ class DrivingTask(control.Task):
         self._random = random if isinstance(random, np.random.RandomState) else np.random.RandomState(random)
         self.road_map = road_map
         self.params = VEHICLES[vehicle]
-        self.vehicle = Vehicle(model, prefix="ego/")
+        self.vehicle = Vehicle(model, prefix="ego/", model_name=vehicle)
         self.collision_sensor = CollisionSensor(model)
         self.lane_invasion_sensor = LaneInvasionSensor(road_map)
         self.cameras: dict[tuple[str, int, int], CameraRenderer] = {}

@@ -16,6 +16,7 @@ from __future__ import annotations
 import collections
 
 import numpy as np
+from dm_control.mujoco import wrapper
 from dm_control.utils import containers
 from dm_env import specs
 
@@ -79,9 +80,10 @@ class WaypointTask(DrivingTask):
         points, headings = self.road_map.waypoints(route, self.waypoint_spacing)
         self.route = route
         self.route_lane = Lane(centre=self.road_map.route_polyline(route), name="route")
-        # The car starts on the first waypoint; the route's waypoints begin one spacing ahead of it.
-        self.vehicle.reset(physics.raw_data, points[0, 0], points[0, 1], headings[0])
-        self.tracker = RouteTracker(points[1:], headings[1:], REACH_RADIUS)
+        # The car starts wholly on the road, on a waypoint; the route's waypoints are the ones ahead of it.
+        start = int(np.ceil((0.5 * self.params.length + 1.0) / self.waypoint_spacing))
+        self.vehicle.reset(physics.raw_data, points[start, 0], points[start, 1], headings[start])
+        self.tracker = RouteTracker(points[start + 1 :], headings[start + 1 :], REACH_RADIUS)
         self.reset_safety_sensors(physics)
         self.info = {
             "route_completion": 0.0, "waypoints_reached": 0, "waypoints_total": self.tracker.total,
@@ -191,7 +193,7 @@ def _make(road_map, routes, time_limit, observation, buildings, vehicle, random,
           **task_kwargs) -> DrivingEnvironment:
     seed = random if isinstance(random, int) else 0
     model = world.build(road_map, vehicle=vehicle, buildings=buildings, seed=seed)
-    physics = Physics.from_model(model)
+    physics = Physics.from_model(wrapper.MjModel(model))
     task = WaypointTask(model, road_map, routes, observation=observation, vehicle=vehicle, random=random,
                         **task_kwargs)
     environment_kwargs = dict(environment_kwargs or {})
