@@ -3,6 +3,7 @@ Environment that turns physics blow-ups into an ended episode instead of an exce
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import dm_env
@@ -20,6 +21,18 @@ ACTION_NAMES = ("throttle", "steer", "brake")
 ACTION_SPEC = specs.BoundedArray(
     (3,), np.float64, minimum=[0.0, -1.0, 0.0], maximum=[1.0, 1.0, 1.0], name="throttle,steer,brake"
 )
+
+
+@dataclass(frozen=True)
+class RoadUsers:
+    """Snapshot of the other road users: kind names, poses (N,3) [m, m, rad] and half sizes (N,3) [m]."""
+
+    kinds: tuple[str, ...]
+    poses: np.ndarray
+    half_sizes: np.ndarray
+
+
+NO_ROAD_USERS = RoadUsers((), np.zeros((0, 3)), np.zeros((0, 3)))
 
 
 class Physics(dm_mujoco.Physics):
@@ -47,7 +60,8 @@ class DrivingTask(control.Task):
         self.collision_sensor = CollisionSensor(model)
         self.lane_invasion_sensor = LaneInvasionSensor(road_map)
         self.cameras: dict[tuple[str, int, int], CameraRenderer] = {}
-        self.info: dict[str, Any] = {}
+        self.info: dict[str, Any] = {}  # episode metrics, refreshed every step
+        self.reward_terms: dict[str, float] = {}  # this step's reward, term by term (for logs)
 
     @property
     def random(self) -> np.random.RandomState:
@@ -76,6 +90,10 @@ class DrivingTask(control.Task):
     def reset_safety_sensors(self, physics: Physics) -> None:
         self.lane_invasion_sensor.reset(self.ego_corners(physics))
         self.collision_sensor.last_other_geom = -1
+
+    def road_users(self) -> RoadUsers:
+        """Every other road user now (for logs and viewers); none in a task without traffic."""
+        return NO_ROAD_USERS
 
     def render_camera(self, physics: Physics, camera: str, height: int, width: int,
                       markers: np.ndarray | None = None) -> np.ndarray:

@@ -123,12 +123,15 @@ class WaypointTask(DrivingTask):
     def _reward(self, waypoint: bool, collision: bool, invasion: bool) -> float:
         v = self.speed * 3.6  # [km/h]
         theta = self.heading_error
-        bonus = 100.0 * waypoint - 200.0 * collision - 200.0 * invasion
+        terms = {"waypoint": 100.0 * waypoint, "collision": -200.0 * collision, "lane_invasion": -200.0 * invasion}
         if self.observation == "camera":  # (3.1) below the limit, (3.2) above it
             limit = self.road_map.lanes[self.route[0]].speed_limit * 3.6
-            return (v * np.cos(theta) if v < limit else -v) + bonus
-        # (3.3)
-        return abs(v * np.cos(theta)) - abs(v * np.sin(theta)) - abs(v) * abs(self.lane_offset) + bonus
+            terms["speed"] = v * np.cos(theta) if v < limit else -v
+        else:  # (3.3)
+            terms["speed"] = abs(v * np.cos(theta)) - abs(v * np.sin(theta))
+            terms["lane_centre"] = -abs(v) * abs(self.lane_offset)
+        self.reward_terms = terms
+        return sum(terms.values())
 
     def get_reward(self, physics: Physics) -> float:
         return float(self._step_reward)
