@@ -1,0 +1,285 @@
+"""N copies of a task stepped together: one physics call per control step, auto-reset, numpy or torch out.
+
+    from mjdrive.envs.batched import BatchedEnv
+    env = BatchedEnv("waypoints", "straight", num_envs=8, nthread=2)
+    obs, info = env.reset(seed=0)                     # obs: {"waypoint_angles": (8,15), ...}
+    obs, reward, terminated, truncated, info = env.step(actions)   # actions (8,3) or (8,) indices
+
+Each copy is a `DrivingGymEnv` (own MjModel/MjData, own task and random stream). A step maps the actions,
+runs every task's `before_step`, advances all physics in ONE call (`backend`), then runs every task's
+`after_step`, reward, termination and observation -- the same sequence as `dm_control`'s
+`Environment.step`, so the "threads" and "serial" backends give bit-identical episodes to the single env.
+
+Backends for the physics call:
+  "serial":  `mj_step` on each copy in turn (reference).
+  "threads": `mj_step` on each copy in a thread pool of `nthread` (MuJoCo releases the GIL in `mj_step`).
+  "rollout": `mujoco.rollout` over all copies (state in/out as arrays, ctrl and mocap as controls). The state
+             is written back with `mj_setState` + `mj_forward`, so contacts are those of the final state and
+             the solver warm start is not carried over: close to, but not bit-identical with, the others.
+
+An episode that ends is reset at once; the returned observation is the new episode's first one and the
+last observation of the ended episode is in `info["final_observation"]` (rows of the envs that did not
+end hold their current observation, so `info["final_observation"]` is always the right "next obs" for a
+replay buffer). `terminated` (task ended: collision, lane invasion, arrival, physics error) and `truncated`
+(time limit) are kept apart.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+from mjdrive.envs.gym_env import DrivingGymEnv, make_env
+
+BACKENDS = ("serial", "threads", "rollout")
+_CONTROL_SPEC = (mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_MOCAP_POS
+                 | mujoco.mjtState.mjSTATE_MOCAP_QUAT)
+_STATE_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
+
+
+class BatchedEnv:
+    """`num_envs` copies of `domain/task` behind one `step`; see the module docstring.
+
+    `device=None` returns numpy arrays; a torch device ("cpu") returns torch tensors instead (obs, reward,
+    terminated, truncated; info stays numpy). Seeds: copy i is reset with `seed + i`; later episodes follow
+    each copy's own random stream, so a run is reproducible from its seed.
+    """
+
+    def __init__(
+        self,
+        domain: str,
+        task: str,
+        num_envs: int = 1,
+        actions: str = "continuous",
+        nthread: int = 1,
+        backend: str = "threads",
+        device: str | None = None,
+        environment_kwargs: dict[str, Any] | None = None,
+        **task_kwargs,
+    ):
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        if backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+        self.domain, self.task_name, self.actions = domain, task, actions
+        self.task_kwargs = dict(task_kwargs)
+        self.num_envs, self.nthread, self.backend, self.device = num_envs, max(1, nthread), backend, device
+        self.envs: list[gym.Env] = [
+            make_env(domain, task, actions=actions, environment_kwargs=environment_kwargs, **task_kwargs)
+            for _ in range(num_envs)
+        ]
+        self.bases: list[DrivingGymEnv] = [env.unwrapped for env in self.envs]
+        self.single_observation_space: gym.spaces.Dict = self.envs[0].observation_space
+        self.single_action_space: gym.Space = self.envs[0].action_space
+        self.discrete = isinstance(self.single_action_space, gym.spaces.Discrete)
+        dm = self.bases[0].dm_env
+        self.control_timestep = float(dm.control_timestep())  # [s]
+        self.n_sub_steps = int(dm._n_sub_steps)
+        self.max_episode_steps = int(np.ceil(dm._step_limit)) if np.isfinite(dm._step_limit) else None
+        self._models = [b.dm_env.physics.model.ptr for b in self.bases]
+        self._datas = [b.dm_env.physics.data.ptr for b in self.bases]
+        self._pool = ThreadPoolExecutor(self.nthread) if backend == "threads" and self.nthread > 1 else None
+        self._rollout = None
+        if backend == "rollout":
+            from mujoco import rollout
+
+            self._rollout = rollout.Rollout(nthread=self.nthread)
+            self._scratch = [mujoco.MjData(self._models[0]) for _ in range(self.nthread)]
+            model = self._models[0]
+            self._state = np.empty((num_envs, mujoco.mj_stateSize(model, _STATE_SPEC)))
+            self._control = np.empty((num_envs, self.n_sub_steps, mujoco.mj_stateSize(model, _CONTROL_SPEC)))
+            self._warmstart = np.empty((num_envs, model.nv))
+            self._states_out = np.empty((num_envs, self.n_sub_steps, self._state.shape[1]))
+        self._obs: list[dict[str, np.ndarray]] = []
+        self.episode_returns = np.zeros(num_envs)
+        self.episode_lengths = np.zeros(num_envs, np.int64)
+
+    # --- gym-like API ---------------------------------------------------------------------------------
+    def reset(self, seed: int | None = None) -> tuple[dict, dict]:
+        """Reset every copy (copy i with `seed + i` when a seed is given)."""
+        self._obs, infos = [], []
+        for i, env in enumerate(self.envs):
+            obs, info = env.reset(seed=None if seed is None else seed + i)
+            self._obs.append(obs)
+            infos.append(info)
+        self.episode_returns[:] = 0.0
+        self.episode_lengths[:] = 0
+        return self._out_obs(self._stack(self._obs)), {"infos": infos}
+
+    def step(self, actions) -> tuple[dict, Any, Any, Any, dict]:
+        """Step every copy with `actions` (num_envs, 3) or (num_envs,) indices; auto-resets ended episodes."""
+        actions = self._to_numpy(actions)
+        if len(actions) != self.num_envs:
+            raise ValueError(f"expected {self.num_envs} actions, got {len(actions)}")
+        n = self.num_envs
+        rewards = np.zeros(n, np.float32)
+        terminated, truncated = np.zeros(n, bool), np.zeros(n, bool)
+        for i, base in enumerate(self.bases):
+            base.task.before_step(self._command(i, actions[i]), base.dm_env.physics)
+        warnings_before = [d.warning.number.copy() for d in self._datas]
+        self._step_physics()
+        final_obs: list[dict[str, np.ndarray]] = []
+        final_info: list[dict | None] = [None] * n
+        for i, base in enumerate(self.bases):
+            obs, reward, term, trunc = self._after_step(base, self._datas[i], warnings_before[i])
+            rewards[i], terminated[i], truncated[i] = reward, term, trunc
+            self.episode_returns[i] += reward
+            self.episode_lengths[i] += 1
+            final_obs.append(obs)
+            if term or trunc:
+                final_info[i] = {**base.task.info, "time_limit": bool(trunc),
+                                 "episode_return": float(self.episode_returns[i]),
+                                 "episode_length": int(self.episode_lengths[i])}
+                obs, _ = self.envs[i].reset()
+                self.episode_returns[i], self.episode_lengths[i] = 0.0, 0
+            self._obs[i] = obs
+        done = terminated | truncated
+        info = {"final_observation": self._stack(final_obs), "_final_observation": done,
+                "final_info": final_info}
+        return (self._out_obs(self._stack(self._obs)), self._out(rewards), self._out(terminated),
+                self._out(truncated), info)
+
+    def observations(self) -> dict:
+        """The current observation of every copy (after the last reset or step)."""
+        return self._out_obs(self._stack(self._obs))
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()
+        if self._pool is not None:
+            self._pool.shutdown()
+        if self._rollout is not None:
+            self._rollout.close()
+
+    # --- internals ------------------------------------------------------------------------------------
+    def _command(self, i: int, action) -> np.ndarray:
+        """The (throttle, steer, brake) command of copy i: through its action table when discrete."""
+        env = self.envs[i]
+        command = env.action(action) if self.discrete else np.asarray(action, np.float64)
+        command = np.asarray(command, np.float64)
+        if not np.all(np.isfinite(command)):
+            raise ValueError(f"action contains NaN or inf: {action}")
+        return command
+
+    def _step_physics(self) -> None:
+        n_sub = self.n_sub_steps
+        if self.backend == "rollout":
+            for i, (m, d) in enumerate(zip(self._models, self._datas, strict=True)):
+                mujoco.mj_getState(m, d, self._state[i], _STATE_SPEC)
+                mujoco.mj_getState(m, d, self._control[i, 0], _CONTROL_SPEC)
+                self._control[i, 1:] = self._control[i, 0]  # held over the control period
+                self._warmstart[i] = d.qacc_warmstart
+            self._rollout.rollout(self._models, self._scratch, self._state, self._control,
+                                  control_spec=_CONTROL_SPEC, nstep=n_sub, initial_warmstart=self._warmstart,
+                                  state=self._states_out, skip_checks=True)
+            for i, (m, d) in enumerate(zip(self._models, self._datas, strict=True)):
+                mujoco.mj_setState(m, d, self._states_out[i, -1], _STATE_SPEC)
+                mujoco.mj_forward(m, d)
+        elif self._pool is not None:
+            pairs = zip(self._models, self._datas, strict=True)
+            list(self._pool.map(lambda md: mujoco.mj_step(md[0], md[1], n_sub), pairs))
+        else:
+            for m, d in zip(self._models, self._datas, strict=True):
+                mujoco.mj_step(m, d, n_sub)
+
+    @staticmethod
+    def _after_step(base: DrivingGymEnv, data: mujoco.MjData, warnings_before: np.ndarray):
+        """The rest of dm_control's `Environment.step` (and DrivingEnvironment's physics-error handling)."""
+        dm, task = base.dm_env, base.task
+        physics = dm.physics
+        new = data.warning.number > warnings_before
+        if new.any() or not np.all(np.isfinite(data.qpos)):
+            names = [name for name, flag in zip(mujoco.mjtWarning.__members__, new, strict=False) if flag]
+            task.info["physics_error"] = f"physics state is invalid ({', '.join(names) or 'non-finite qpos'})"
+            dm._reset_next_step = True
+            return dict(dm._last_observation), 0.0, True, False
+        task.after_step(physics)
+        reward = float(task.get_reward(physics) or 0.0)
+        observation = task.get_observation(physics)
+        dm._step_count += 1
+        discount = 1.0 if dm._step_count >= dm._step_limit else task.get_termination(physics)
+        dm._last_observation = observation
+        if discount is None:
+            return dict(observation), reward, False, False
+        dm._reset_next_step = True
+        terminated = discount == 0.0
+        return dict(observation), reward, terminated, not terminated
+
+    def _stack(self, observations: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+        return {key: np.stack([obs[key] for obs in observations]) for key in self.single_observation_space}
+
+    def _to_numpy(self, actions) -> np.ndarray:
+        if hasattr(actions, "detach"):
+            actions = actions.detach().cpu().numpy()
+        return np.asarray(actions)
+
+    def _out(self, array: np.ndarray):
+        if self.device is None:
+            return array
+        import torch
+
+        return torch.as_tensor(array, device=self.device)
+
+    def _out_obs(self, obs: dict[str, np.ndarray]) -> dict:
+        return obs if self.device is None else {key: self._out(value) for key, value in obs.items()}
+
+
+# --- a flat, learner-facing view of the observation ----------------------------------------------------
+
+# Fixed scales that bring the tasks' observations (in the studies' units) to O(1) for the networks.
+FEATURE_SCALES: dict[str, float] = {
+    "waypoint_angles": 1 / 90.0,  # [deg]
+    "heading_error": 1 / 90.0,  # [deg]
+    "speed": 1 / 30.0,  # [km/h]
+    "lane_offset": 1 / 2.0,  # [m]
+    "waypoint_distance": 1 / 10.0,  # [m]
+    "destination": 1 / 30.0,  # [m]
+}
+
+
+def is_image_space(space: gym.Space) -> bool:
+    return isinstance(space, gym.spaces.Box) and space.dtype == np.uint8 and len(space.shape) == 3
+
+
+class ObservationLayout:
+    """Splits a dict observation into one float feature vector (scaled, keys in the space's order) and at
+    most one uint8 image in (C, H, W) order (an (H, W, C) image with C <= 4 is transposed)."""
+
+    def __init__(self, space: gym.spaces.Dict, scales: dict[str, float] | None = None):
+        self.scales = {**FEATURE_SCALES, **(scales or {})}
+        images = [key for key, sub in space.spaces.items() if is_image_space(sub)]
+        if len(images) > 1:
+            raise ValueError(f"at most one image observation is supported, got {images}")
+        self.image_key = images[0] if images else None
+        self.feature_keys = [key for key in space.spaces if key != self.image_key]
+        self.feature_dim = int(sum(np.prod(space[key].shape) for key in self.feature_keys))
+        self.image_shape: tuple[int, int, int] | None = None
+        self._transpose = False
+        if self.image_key is not None:
+            shape = space[self.image_key].shape
+            self._transpose = shape[-1] <= 4 < shape[0]
+            self.image_shape = (shape[2], shape[0], shape[1]) if self._transpose else tuple(shape)
+
+    def features(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """(N, feature_dim) float32 from batched observations."""
+        if not self.feature_keys:
+            n = len(next(iter(obs.values())))
+            return np.zeros((n, 0), np.float32)
+        parts = [np.asarray(obs[k], np.float32).reshape(len(obs[k]), -1) * self.scales.get(k, 1.0)
+                 for k in self.feature_keys]
+        return np.concatenate(parts, axis=1)
+
+    def image(self, obs: dict[str, np.ndarray]) -> np.ndarray | None:
+        """(N, C, H, W) uint8 from batched observations, or None without an image."""
+        if self.image_key is None:
+            return None
+        image = np.asarray(obs[self.image_key])
+        return np.ascontiguousarray(image.transpose(0, 3, 1, 2)) if self._transpose else image
+
+    def describe(self) -> dict[str, Any]:
+        return {"feature_keys": self.feature_keys, "feature_dim": self.feature_dim,
+                "image_key": self.image_key, "image_shape": self.image_shape}
