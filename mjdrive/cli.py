@@ -66,7 +66,7 @@ def cmd_run(args) -> int:
         video = EpisodeVideo(env, out / f"episode_{episode:03d}.mp4") if args.video else None
         total_reward, steps = 0.0, 0
         start = time.perf_counter()
-        with tqdm(desc=f"episode {episode} (seed {seed})", unit="step", leave=False) as bar:
+        with tqdm(desc=f"episode {episode} (seed {seed})", unit="step", leave=False, mininterval=1.0) as bar:
             while True:
                 if video:
                     video.add_frame()

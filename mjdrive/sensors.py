@@ -56,13 +56,20 @@ class LaneInvasionSensor:
     def __init__(self, road_map: RoadMap):
         self.road_map = road_map
         self.previous: np.ndarray | None = None
+        self.previous_inside = False
 
     def reset(self, corners: np.ndarray) -> None:
         self.previous = corners.copy()
+        self.previous_inside = False
 
-    def __call__(self, corners: np.ndarray) -> bool:
-        crossed = self.previous is not None and bool(self.road_map.crossed_solid(self.previous, corners))
-        self.previous = corners
+    def __call__(self, corners: np.ndarray, inside_lane: bool = False) -> bool:
+        """`inside_lane`: the caller knows the footprint lies wholly inside one lane strip now; if it also
+        did at the previous call, no marking can have been crossed and the map query is skipped."""
+        if inside_lane and self.previous_inside:
+            crossed = False
+        else:
+            crossed = self.previous is not None and bool(self.road_map.crossed_solid(self.previous, corners))
+        self.previous, self.previous_inside = corners, inside_lane
         return crossed
 
 
@@ -117,6 +124,23 @@ class RouteTracker:
 _OPEN_RENDERERS: weakref.WeakSet = weakref.WeakSet()
 
 
+def _ensure_headless_gl() -> None:
+    """If mujoco was imported before mjdrive (so before MUJOCO_GL defaulted to egl) on a machine without
+    a display, it picked GLFW, which cannot open a context: switch its renderer to EGL or OSMesa."""
+    import os
+
+    from mujoco.rendering.classic import gl_context
+
+    if os.environ.get("DISPLAY") or gl_context.GLContext is None:
+        return
+    if gl_context.GLContext.__module__.startswith("mujoco.glfw"):
+        if os.environ.get("MUJOCO_GL", "egl").lower() == "osmesa":
+            from mujoco.osmesa import GLContext
+        else:
+            from mujoco.egl import GLContext
+        gl_context.GLContext = GLContext
+
+
 def _close_renderers() -> None:
     """Free GL contexts before the GL library itself is torn down at exit (avoids EGL errors)."""
     for renderer in list(_OPEN_RENDERERS):
@@ -124,7 +148,8 @@ def _close_renderers() -> None:
 
 
 class CameraRenderer:
-    """Off-screen RGB camera with shadows and reflections off, and optional waypoint markers.
+    """Off-screen RGB camera with shadows, reflections and (by default) anti-aliasing off, and optional
+    waypoint markers.
 
     Markers are drawn into the scene at render time only (they do not exist in the physics).
     """
@@ -132,8 +157,20 @@ class CameraRenderer:
     MARKER_RGBA = np.array([0.1, 0.9, 0.2, 1.0], np.float32)
     MARKER_SIZE = np.array([0.35, 0.35, 0.02])  # [m] half sizes of the flat green rectangles
 
-    def __init__(self, model: mujoco.MjModel, camera: str, height: int, width: int):
-        self.renderer = mujoco.Renderer(model, height, width)
+    def __init__(self, model: mujoco.MjModel, camera: str, height: int, width: int, antialias: bool = False):
+        _ensure_headless_gl()
+        samples = model.vis.quality.offsamples
+        # Multisampling triples the cost of a small software render: off for observations, on for videos.
+        model.vis.quality.offsamples = samples if antialias else 0
+        try:
+            self.renderer = mujoco.Renderer(model, height, width)
+        except mujoco.FatalError as error:
+            raise RuntimeError(
+                f"off-screen rendering failed ({error}). Install libegl1 libopengl0 libgl1-mesa-dri "
+                "(MUJOCO_GL=egl) or libosmesa6 (MUJOCO_GL=osmesa), e.g. with `make install` as root."
+            ) from error
+        finally:
+            model.vis.quality.offsamples = samples
         self.camera = model.camera(camera).id
         self.buffer = np.empty((height, width, 3), np.uint8)
         if not _OPEN_RENDERERS:  # registered after the GL backend's own exit handler, so it runs first

@@ -27,8 +27,8 @@ class EpisodeVideo:
         markers = None
         if tracker is not None:
             markers = tracker.points[tracker.next_index : tracker.next_index + 5]
-        front = task.render_camera(physics, "ego/front", *FRONT_SIZE, markers=markers).copy()
-        top = task.render_camera(physics, "ego/top", *TOP_SIZE, markers=markers).copy()
+        front = task.render_camera(physics, "ego/front", *FRONT_SIZE, markers=markers, antialias=True).copy()
+        top = task.render_camera(physics, "ego/top", *TOP_SIZE, markers=markers, antialias=True).copy()
         return np.concatenate([front, top], axis=1)
 
     def add_frame(self) -> None:

@@ -124,13 +124,17 @@ class Lane:
         return k[i] + t * (k[i + 1] - k[i])
 
     # --- projection --------------------------------------------------------------------------------
-    def local_coordinates(self, xy: ArrayLike):
+    def local_coordinates(self, xy: ArrayLike, near_s: float | None = None, window: float = 25.0):
         """(s, d) [m] of world point(s) xy (2,) or (K,2); s is clamped to [0, length].
 
-        For a single point returns floats, else arrays (K,).
+        For a single point returns floats, else arrays (K,). With `near_s` (a single point whose s is known
+        to be within `window` [m] of near_s, e.g. last step's), only those segments are searched: O(window)
+        instead of O(length) on long routes.
         """
         xy = np.asarray(xy, dtype=float)
         single = xy.ndim == 1
+        if single and near_s is not None:
+            return self.frame(xy, near_s, window)[:2]
         pts = xy.reshape(-1, 2)
         s_out, d_out = np.empty(len(pts)), np.empty(len(pts))
         chunk = max(1, 2_000_000 // len(self._table))
@@ -144,6 +148,21 @@ class Lane:
         if single:
             return float(s_out[0]), float(d_out[0])
         return s_out, d_out
+
+    def frame(self, xy: ArrayLike, near_s: float | None = None, window: float = 25.0
+              ) -> tuple[float, float, float]:
+        """(s [m], d [m], lane heading [rad]) at the projection of one point, searching only within
+        `window` [m] of `near_s` when given (the fast path for a car tracked along a long route)."""
+        rows = self._table
+        if near_s is not None:
+            lo, hi = np.searchsorted(rows[:, sp.S0], (near_s - window, near_s + window))
+            rows = rows[max(lo - 1, 0) : max(hi, 1)]
+        t, d, dist, _ = sp.project(rows, xy[0], xy[1])
+        j = int(np.argmin(dist))
+        tc = min(max(float(t[j]), 0.0), 1.0)
+        row = rows[j]
+        heading = (row[sp.H0] + tc * row[sp.DH] + np.pi) % (2 * np.pi) - np.pi
+        return float(row[sp.S0] + tc * row[sp.LEN]), float(d[j]), float(heading)
 
     # --- outline ------------------------------------------------------------------------------------
     def left_edge(self) -> np.ndarray:

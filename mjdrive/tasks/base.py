@@ -59,7 +59,7 @@ class DrivingTask(control.Task):
         self.vehicle = Vehicle(model, prefix="ego/", model_name=vehicle)
         self.collision_sensor = CollisionSensor(model)
         self.lane_invasion_sensor = LaneInvasionSensor(road_map)
-        self.cameras: dict[tuple[str, int, int], CameraRenderer] = {}
+        self.cameras: dict[tuple[str, int, int, bool], CameraRenderer] = {}
         self.info: dict[str, Any] = {}  # episode metrics, refreshed every step
         self.reward_terms: dict[str, float] = {}  # this step's reward, term by term (for logs)
 
@@ -96,11 +96,11 @@ class DrivingTask(control.Task):
         return NO_ROAD_USERS
 
     def render_camera(self, physics: Physics, camera: str, height: int, width: int,
-                      markers: np.ndarray | None = None) -> np.ndarray:
-        """Off-screen render of `camera` (renderer created once per (camera, size))."""
-        key = (camera, height, width)
+                      markers: np.ndarray | None = None, antialias: bool = False) -> np.ndarray:
+        """Off-screen render of `camera` (renderer created once per (camera, size, antialias))."""
+        key = (camera, height, width, antialias)
         if key not in self.cameras:
-            self.cameras[key] = CameraRenderer(physics.raw_model, camera, height, width)
+            self.cameras[key] = CameraRenderer(physics.raw_model, camera, height, width, antialias)
         return self.cameras[key].render(physics.raw_data, markers)
 
 

@@ -73,13 +73,14 @@ class WaypointTask(DrivingTask):
                 continue
             if sum(self.road_map.lanes[i].length for i in route) >= MIN_RANDOM_ROUTE:
                 return route
-        raise RuntimeError("could not sample a random route of at least %.0f m" % MIN_RANDOM_ROUTE)
+        raise RuntimeError(f"could not sample a random route of at least {MIN_RANDOM_ROUTE:.0f} m")
 
     def initialize_episode(self, physics: Physics) -> None:
         route = self._sample_route()
         points, headings = self.road_map.waypoints(route, self.waypoint_spacing)
         self.route = route
         self.route_lane = Lane(centre=self.road_map.route_polyline(route), name="route")
+        self.route_s: float | None = None  # unknown until the first projection over the whole route
         # The car starts wholly on the road, on a waypoint; the route's waypoints are the ones ahead of it.
         start = int(np.ceil((0.5 * self.params.length + 1.0) / self.waypoint_spacing))
         self.vehicle.reset(physics.raw_data, points[start, 0], points[start, 1], headings[start])
@@ -96,9 +97,10 @@ class WaypointTask(DrivingTask):
     def _update_lane_frame(self, physics: Physics) -> None:
         x, y, yaw = self.vehicle.pose(physics.raw_data)
         self.xy = np.array([x, y])
-        s, d = self.route_lane.local_coordinates(self.xy)
-        self.lane_offset = float(d)  # [m] d_c, > 0 left of the lane centre
-        self.heading_error = float(wrap_angle(yaw - self.route_lane.heading(s)))  # [rad]
+        s, d, lane_heading = self.route_lane.frame(self.xy, near_s=self.route_s)
+        self.route_s = s  # [m] progress along the route polyline
+        self.lane_offset = d  # [m] d_c, > 0 left of the lane centre
+        self.heading_error = (yaw - lane_heading + np.pi) % (2 * np.pi) - np.pi  # [rad]
         self.yaw = yaw
         self.speed = float(self.vehicle.speed(physics.raw_data))  # [m/s]
 
@@ -108,8 +110,10 @@ class WaypointTask(DrivingTask):
         info = self.info
         waypoint_reached = self.tracker.update(self.xy)
         collision = self.collision_sensor(physics.raw_data)
-        invasion = self.lane_invasion_sensor(self.ego_corners(physics))
-        off_road = not bool(self.road_map.on_road(self.xy))
+        invasion = self.lane_invasion_sensor(self.ego_corners(physics), self._inside_route_lane())
+        # Within its own lane the car is on the road; only a car outside it needs the map-wide query.
+        in_lane = abs(self.lane_offset) <= 0.5 * self.route_lane.width
+        off_road = not in_lane and not bool(self.road_map.on_road(self.xy))
         info["collision"] |= collision
         info["lane_invasion"] |= invasion
         info["off_road"] |= off_road
@@ -119,6 +123,12 @@ class WaypointTask(DrivingTask):
         info["elapsed_time"] = float(physics.data.time)
         info["distance"] += float(np.hypot(*(self.xy - previous_xy)))
         self._step_reward = self._reward(waypoint_reached, collision, invasion)
+
+    def _inside_route_lane(self) -> bool:
+        """Whether the whole footprint lies inside the route lane's strip (no marking can be touched)."""
+        c, s = abs(np.cos(self.heading_error)), abs(np.sin(self.heading_error))
+        half_extent = 0.5 * (self.params.width * c + self.params.length * s)  # [m] lateral
+        return abs(self.lane_offset) + half_extent < 0.5 * self.route_lane.width - 0.05
 
     def _reward(self, waypoint: bool, collision: bool, invasion: bool) -> float:
         v = self.speed * 3.6  # [km/h]
