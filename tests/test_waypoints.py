@@ -81,3 +81,48 @@ def test_route_tracker_counts_reached_and_skipped_waypoints():
     for x in np.arange(12.0, 50.0, 1.0):
         tracker.update(np.array([x, 0.0]))
     assert tracker.done and tracker.reached == 8 and tracker.completion == pytest.approx(0.8)
+
+
+def test_buildings_line_the_roads_without_touching_them():
+    env = suite.load("waypoints", "random_routes", {"random": 0, "buildings": True})
+    model = env.physics.model.ptr
+    buildings = [i for i in range(model.ngeom) if model.geom(i).name.startswith("building_")]
+    assert len(buildings) > 20
+    assert not env.task.road_map.on_road(model.geom_pos[buildings, :2]).any()
+    assert (model.geom_contype[buildings] & 2).all()  # solid for the car body
+
+
+def test_driving_into_an_obstacle_is_a_collision_from_a_real_contact():
+    import mujoco
+    from dm_control.mujoco import wrapper
+
+    from mjdrive import world
+    from mjdrive.tasks.base import DrivingEnvironment, Physics
+    from mjdrive.tasks.waypoints import WaypointTask
+
+    road_map, routes = roads.crafted_routes()
+    lane = road_map.lanes[routes["straight"][0]]
+    spec = world.build_spec(road_map)
+    block = lane.position(40.0)
+    spec.worldbody.add_geom(name="block", type=mujoco.mjtGeom.mjGEOM_BOX, size=[1, 1, 1],
+                            pos=[block[0], block[1], 1.0], contype=2, conaffinity=2)
+    model = spec.compile()
+    task = WaypointTask(model, road_map, [routes["straight"]], random=0)
+    env = DrivingEnvironment(Physics.from_model(wrapper.MjModel(model)), task, control_timestep=0.1)
+    env.reset()
+    for _ in range(100):
+        timestep = env.step(np.array([0.6, 0.0, 0.0]))
+        if timestep.last():
+            break
+    assert task.info["collision"] and not task.info["lane_invasion"] and timestep.discount == 0.0
+    assert model.geom(task.collision_sensor.last_other_geom).name == "block"
+
+
+def test_off_road_ends_the_episode():
+    env = suite.load("waypoints", "straight", {"random": 0})
+    env.reset()
+    task, data = env.task, env.physics.data.ptr
+    x, y, yaw = task.vehicle.pose(data)
+    task.vehicle.reset(data, x, y + 30.0, yaw)  # 30 m beside the road, on the grass
+    timestep = env.step(np.zeros(3))
+    assert task.info["off_road"] and timestep.last() and timestep.discount == 0.0
