@@ -76,16 +76,10 @@ def build_spec(
     return spec
 
 
-def build(
-    road_map: RoadMap | None,
-    vehicle: str = "sedan",
-    buildings: bool = False,
-    traffic: Sequence[TrafficSlot] = (),
-    timestep: float = PHYSICS_TIMESTEP,
-    seed: int = 0,
-) -> mujoco.MjModel:
-    """Compile the world of `build_spec` into an MjModel (once per task instance, not per episode)."""
-    model = build_spec(road_map, vehicle, buildings, traffic, timestep, seed).compile()
+def build(road_map: RoadMap | None, **kwargs) -> mujoco.MjModel:
+    """Compile the world of `build_spec(road_map, **kwargs)` into an MjModel (once per task instance, not per
+    episode)."""
+    model = build_spec(road_map, **kwargs).compile()
     # Clip planes are relative to the model's extent, which a large map inflates: keep them metric.
     model.vis.map.znear = NEAR_CLIP / model.stat.extent
     model.vis.map.zfar = FAR_CLIP / model.stat.extent
