@@ -178,7 +178,6 @@ class CameraRenderer:
             atexit.register(_close_renderers)
         _OPEN_RENDERERS.add(self)
         self._identity = np.eye(3).ravel()
-        self._warm = False
         scene = self.renderer.scene
         scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
         scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
@@ -186,10 +185,10 @@ class CameraRenderer:
 
     def render(self, data: mujoco.MjData, markers: np.ndarray | None = None, z: float = 0.03) -> np.ndarray:
         """Render into the reused buffer; returns it (copy it if you keep it)."""
-        if not self._warm:  # a context's very first frame differs from all later ones: discard it
-            self.renderer.update_scene(data, self.camera)
-            self.renderer.render(out=self.buffer)
-            self._warm = True
+        # MuJoCo places infinite planes (the ground) using the camera pose of the *previous* scene update,
+        # so a frame after the camera jumped (a reset) would differ from the same state rendered again:
+        # update twice (a few µs) so the image depends on the state alone.
+        self.renderer.update_scene(data, self.camera)
         self.renderer.update_scene(data, self.camera)
         scene = self.renderer.scene
         if markers is not None:

@@ -126,3 +126,24 @@ def test_off_road_ends_the_episode():
     task.vehicle.reset(data, x, y + 30.0, yaw)  # 30 m beside the road, on the grass
     timestep = env.step(np.zeros(3))
     assert task.info["off_road"] and timestep.last() and timestep.discount == 0.0
+
+
+def test_camera_image_depends_on_the_state_alone():
+    """Same state, same pixels: also for the first frame and right after the camera jumped (a reset)."""
+    import mujoco
+
+    from mjdrive.sensors import CameraRenderer
+
+    env = suite.load("waypoints", "four_routes", {"random": 0})
+    env.reset()
+    model, data = env.physics.model.ptr, env.physics.data.ptr
+    state = data.qpos.copy()
+    renderer = CameraRenderer(model, "ego/front", 64, 64)
+    first = renderer.render(data).copy()
+    data.qpos[0] += 300.0  # far away
+    mujoco.mj_forward(model, data)
+    renderer.render(data)
+    data.qpos[:] = state
+    mujoco.mj_forward(model, data)
+    assert np.array_equal(renderer.render(data), first)
+    renderer.close()
