@@ -1,4 +1,4 @@
-"""`mjdrive list | run | bench`: the command line."""
+"""`mjdrive list | run | bench | replay | logs`: the command line."""
 
 from __future__ import annotations
 
@@ -59,6 +59,11 @@ def cmd_run(args) -> int:
     policy = make_policy(args.policy, env, args.seed)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.record:  # one MCAP file per episode in OUT (see mjdrive/record/recorder.py)
+        from mjdrive.record import RecordEpisodes, RecordOptions
+
+        env = RecordEpisodes(env, out, RecordOptions(camera_every=args.record_camera_every,
+                                                     image_format=args.record_image_format))
     summaries = []
     for episode in range(args.episodes):
         seed = args.seed + episode
@@ -83,11 +88,31 @@ def cmd_run(args) -> int:
         summary = {"episode": episode, "seed": seed, "steps": steps, "reward": round(total_reward, 2),
                    "terminated": terminated, "truncated": truncated, "wall_s": round(wall, 2),
                    **{k: v for k, v in info.items() if isinstance(v, (bool, int, float, str, type(None)))}}
+        if "record_path" in info:
+            summary["log"] = Path(info["record_path"]).name
         summaries.append(summary)
         print(json.dumps(summary))
     (out / "summary.json").write_text(json.dumps(summaries, indent=2))
-    print(f"wrote {out}/ ({'videos, ' if args.video else ''}summary.json)")
+    print(f"wrote {out}/ ({'MCAP logs, ' if args.record else ''}{'videos, ' if args.video else ''}summary.json)")
     env.close()
+    return 0
+
+
+def cmd_replay(args) -> int:
+    from mjdrive.record.replay import replay
+
+    result = replay(args.file, video=args.video)
+    print(result.report())
+    return 0 if result.match else 1
+
+
+def cmd_logs(args) -> int:
+    from mjdrive.record.reader import logs_table
+
+    table = logs_table(args.folder)
+    print(table)
+    if args.out:
+        Path(args.out).write_text(table + "\n")
     return 0
 
 
@@ -118,7 +143,22 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--out", default="runs/demo", help="output folder")
     run.add_argument("--video", action=argparse.BooleanOptionalAction, default=True,
                      help="write an mp4 per episode (front camera | top view)")
+    run.add_argument("--record", action=argparse.BooleanOptionalAction, default=True,
+                     help="write an MCAP log per episode into OUT (Foxglove; see `mjdrive logs`, `mjdrive replay`)")
+    run.add_argument("--record-camera-every", type=int, default=1, metavar="K",
+                     help="log the front camera every K-th step (0: no images)")
+    run.add_argument("--record-image-format", default="jpeg", choices=("jpeg", "png"))
     run.set_defaults(func=cmd_run)
+
+    replay = sub.add_parser("replay", help="re-simulate a logged episode and check it matches bit for bit")
+    replay.add_argument("file", help="an episode's .mcap file")
+    replay.add_argument("--video", default=None, metavar="OUT.mp4", help="also render the replay to a video")
+    replay.set_defaults(func=cmd_replay)
+
+    logs = sub.add_parser("logs", help="summarise a folder of episode logs as a markdown table")
+    logs.add_argument("folder", help="a folder of .mcap episode files")
+    logs.add_argument("--out", default=None, help="also write the table to this file")
+    logs.set_defaults(func=cmd_logs)
 
     bench = sub.add_parser("bench", help="throughput: raw mj_step vs env steps, with and without camera")
     bench.add_argument("--tasks", nargs="+", default=["waypoints/straight", "waypoints/random_routes"])

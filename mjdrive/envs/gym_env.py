@@ -46,6 +46,7 @@ class DrivingGymEnv(gym.Env):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.domain, self.task_name = domain, task
         self.task_kwargs = dict(task_kwargs or {})
+        self.environment_kwargs = dict(environment_kwargs) if environment_kwargs else None  # for logs/replay
         self.dm_env = suite.load(domain, task, self.task_kwargs, environment_kwargs)
         self.task = self.dm_env.task
         self.observation_space = gym.spaces.Dict(

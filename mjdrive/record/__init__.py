@@ -1,0 +1,14 @@
+"""Episode logs: one MCAP file per episode with Foxglove schemas, and replay from those files.
+
+    from mjdrive.record import RecordEpisodes, RecordOptions
+    env = RecordEpisodes(gymnasium.make("mjdrive/Waypoints-Straight-v0"), "runs/logs",
+                         RecordOptions(camera_every=1))
+
+See `recorder.py` for file names and topics, `reader.py` to read files back, `replay.py` to re-simulate.
+"""
+
+from mjdrive.record.recorder import EnvSpec, EpisodeRecorder, RecordOptions, episode_filename
+from mjdrive.record.wrappers import RecordedEnvironment, RecordEpisodes, load
+
+__all__ = ["EnvSpec", "EpisodeRecorder", "RecordOptions", "RecordEpisodes", "RecordedEnvironment", "episode_filename",
+           "load"]

@@ -1,0 +1,197 @@
+"""Read episode files back with the `mcap` reader: metadata, per-topic messages (JSON and protobuf decoded),
+and the `mjdrive logs` table. Truncated files (a killed writer, a cut copy) are read up to the damage and
+flagged `complete=False` with the reason, instead of raising."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.records import Channel, DataEnd, Footer, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+
+from mjdrive.record import proto
+
+
+class EpisodeFileError(ValueError):
+    """A file that is not a readable mjdrive episode (not MCAP, or no mjdrive metadata)."""
+
+
+@dataclass
+class Episode:
+    """One episode file: `metadata` (the "mjdrive" record, JSON values decoded), `summary` (None if the
+    file ends before it), raw `messages` per topic as (log_time [ns], bytes), and whether it is complete."""
+
+    path: Path
+    metadata: dict[str, Any]
+    summary: dict[str, Any] | None
+    messages: dict[str, list[tuple[int, bytes]]]
+    schemas: dict[str, tuple[str, str, bytes]]  # topic -> (schema name, encoding, data)
+    complete: bool
+    error: str | None = None
+    message_encodings: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def topics(self) -> set[str]:
+        return set(self.messages)
+
+    def json(self, topic: str) -> list[dict]:
+        return [json.loads(data) for _, data in self.messages.get(topic, [])]
+
+    def decoded(self, topic: str) -> list:
+        """Protobuf messages of `topic`, decoded with the schema stored in the file."""
+        name, _, data = self.schemas[topic]
+        return [proto.decode(name, data, payload) for _, payload in self.messages.get(topic, [])]
+
+    def physics(self) -> dict[str, np.ndarray]:
+        """Stacked /physics states: time (T,1), qpos (T,nq), qvel (T,nv), act, mocap_pos, mocap_quat (T,...);
+        T = steps + 1, the reset state first."""
+        states = self.decoded("/physics")
+        return {"time": np.array([s.time for s in states]).reshape(len(states), 1),
+                "qpos": np.array([list(s.qpos) for s in states]).reshape(len(states), -1),
+                "qvel": np.array([list(s.qvel) for s in states]).reshape(len(states), -1),
+                "act": np.array([list(s.act) for s in states]).reshape(len(states), -1),
+                "mocap_pos": np.array([list(s.mocap_pos) for s in states]).reshape(len(states), -1),
+                "mocap_quat": np.array([list(s.mocap_quat) for s in states]).reshape(len(states), -1)}
+
+    def actions(self) -> np.ndarray:
+        """(steps, 3) applied (throttle, steer, brake)."""
+        return np.array([[a["throttle"], a["steer"], a["brake"]] for a in self.json("/action")]).reshape(-1, 3)
+
+    @property
+    def readable_steps(self) -> int:
+        """Steps whose action and resulting state are both in the file."""
+        return max(0, min(len(self.messages.get("/action", [])), len(self.messages.get("/physics", [])) - 1))
+
+    def describe_damage(self) -> str:
+        return (f"{self.path} is incomplete ({self.error}); the writer was probably killed or the file was cut. "
+                f"{self.readable_steps} steps are readable.")
+
+
+def _metadata_values(record: Metadata) -> dict[str, Any]:
+    out = {}
+    for key, value in record.metadata.items():
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
+def read_episode(path: str | Path, topics: set[str] | None = None) -> Episode:
+    """Read an episode file (all topics, or only `topics`). Raises EpisodeFileError if it is not an mjdrive
+    MCAP file; a damaged file gives `complete=False` and what could be read before the damage."""
+    path = Path(path)
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    messages: dict[str, list[tuple[int, bytes]]] = defaultdict(list)
+    metadata: dict[str, Any] | None = None
+    summary = None
+    complete, error = False, None
+    with open(path, "rb") as f:
+        try:
+            for record in StreamReader(f, skip_magic=False, validate_crcs=True).records:
+                if isinstance(record, Message):
+                    channel = channels[record.channel_id]
+                    if topics is None or channel.topic in topics:
+                        messages[channel.topic].append((record.log_time, record.data))
+                elif isinstance(record, Channel):
+                    channels[record.id] = record
+                elif isinstance(record, Schema):
+                    schemas[record.id] = record
+                elif isinstance(record, Metadata):
+                    if record.name == "mjdrive":
+                        metadata = _metadata_values(record)
+                    elif record.name == "summary":
+                        summary = _metadata_values(record)
+                elif isinstance(record, (DataEnd, Footer)):
+                    complete = isinstance(record, Footer) or complete
+        except Exception as exc:  # the mcap reader raises several types on cut or corrupt data
+            if metadata is None and not messages:
+                raise EpisodeFileError(f"{path} is not a readable MCAP file ({type(exc).__name__}: {exc})") from exc
+            error = f"{type(exc).__name__}: {exc}" if str(exc) else f"{type(exc).__name__}: data ends early"
+            complete = False
+    if metadata is None:
+        raise EpisodeFileError(f"{path} has no mjdrive metadata (not an mjdrive episode log?)")
+    if complete and summary is None:
+        complete, error = False, "no summary record"
+    if not complete and error is None:
+        error = "the file ends before its footer"
+    by_topic = {c.topic: c for c in channels.values()}
+    topic_schemas = {t: (schemas[c.schema_id].name, schemas[c.schema_id].encoding, schemas[c.schema_id].data)
+                     for t, c in by_topic.items() if c.schema_id in schemas}
+    return Episode(path, metadata, summary, dict(messages), topic_schemas, complete, error,
+                   {t: c.message_encoding for t, c in by_topic.items()})
+
+
+# --- mjdrive logs ---------------------------------------------------------------------------------------
+
+
+def episode_files(folder: str | Path) -> list[Path]:
+    """The episode files of a folder: finished `.mcap` and unfinished `.mcap.part`, sorted by name."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder} is not a folder")
+    return sorted([*folder.glob("*.mcap"), *folder.glob("*.mcap.part")])
+
+
+def _fmt(value: Any, digits: int = 2) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return f"{value:.{digits}f}" if math.isfinite(value) else str(value)
+    return str(value)
+
+
+def logs_table(folder: str | Path) -> str:
+    """A markdown table of the episodes in `folder` (one row per file, damaged files flagged) and totals."""
+    rows = [
+        "| file | task | seed | steps | return | success | collision | time [s] | mean speed [m/s] | end |",
+        "| --- | --- | ---: | ---: | ---: | --- | --- | ---: | ---: | --- |",
+    ]
+    done: list[dict] = []
+    problems: list[str] = []
+    for path in episode_files(folder):
+        try:
+            episode = read_episode(path, topics={"/action", "/physics"})
+        except EpisodeFileError as error:
+            rows.append(f"| {path.name} | - | - | - | - | - | - | - | - | unreadable |")
+            problems.append(str(error))
+            continue
+        meta, summary = episode.metadata, episode.summary
+        if summary is None:
+            rows.append(f"| {path.name} | {meta.get('task')} | {_fmt(meta.get('seed'))} | {episode.readable_steps} "
+                        f"| - | - | - | - "
+                        f"| - | incomplete |")
+            problems.append(episode.describe_damage())
+            continue
+        info = summary.get("info", {})
+        end = ("interrupted" if summary.get("interrupted") else "terminated" if summary.get("terminated")
+               else "time limit" if summary.get("truncated") else "-")
+        if info.get("physics_error"):
+            end = "physics error"
+        rows.append(
+            f"| {path.name} | {summary.get('task')} | {_fmt(summary.get('seed'))} | {summary.get('steps')} "
+            f"| {_fmt(summary.get('return'), 1)} | {_fmt(info.get('success'))} | {_fmt(info.get('collision'))} "
+            f"| {_fmt(info.get('elapsed_time', summary.get('sim_time')), 1)} | {_fmt(summary.get('mean_speed'))} "
+            f"| {end} |")
+        done.append({**summary, "info": info})
+    if done:
+        n = len(done)
+        rate = lambda key: sum(bool(d["info"].get(key)) for d in done) / n  # noqa: E731
+        rows.append(
+            f"| **all {n} complete** | | | {sum(d['steps'] for d in done)} "
+            f"| {np.mean([d['return'] for d in done]):.1f} (mean) | {rate('success'):.0%} | {rate('collision'):.0%} "
+            f"| {np.mean([d['info'].get('elapsed_time', d['sim_time']) for d in done]):.1f} (mean) "
+            f"| {np.mean([d['mean_speed'] for d in done]):.2f} | |")
+    lines = [f"# Episodes in {folder}", "", *rows]
+    if problems:
+        lines += ["", "Problems:", *[f"- {p}" for p in problems]]
+    return "\n".join(lines)

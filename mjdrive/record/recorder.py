@@ -1,0 +1,483 @@
+"""`EpisodeRecorder`: one MCAP file per episode, fed by (task, physics, action, reward, done) after every
+env step. It knows no env class, so the gymnasium and dm_control wrappers (and a batched env, one recorder
+per copy) all drive it the same way.
+
+File naming: `{domain}-{task}_{seed}_{episode:05d}.mcap` in the output folder (`seed` is the reset seed,
+or `noseed`; `episode` counts this recorder's episodes from `first_episode`). A name already taken (by
+another recorder, process or an older run) gets a suffix `-1`, `-2`, ... Each file is written as
+`NAME.mcap.part` and renamed (hard link + unlink: never overwrites) once closed, so a `.mcap` file is
+always complete; a killed process leaves at most one `.part` per recorder, readable up to its last chunk.
+
+Topics (log times: the episode's wall-clock start + simulated time, so plots start at 0 s):
+
+| topic | schema | when |
+| --- | --- | --- |
+| /tf | foxglove.FrameTransforms | world -> ego (chassis, 3D) and ego -> camera_front (optical frame), every step |
+| /scene/road | foxglove.SceneUpdate | once: lane surfaces, paved areas, markings, crosswalks (frame world) |
+| /scene/route | foxglove.SceneUpdate | once: route centre line and waypoints |
+| /scene/ego | foxglove.SceneUpdate | once: the ego box, locked to frame ego |
+| /scene/road_users | foxglove.SceneUpdate | every step while there are road users: boxes coloured by kind |
+| /camera/front | foxglove.CompressedImage | every `camera_every`-th step (optional), JPEG or PNG |
+| /camera/front/calibration | foxglove.CameraCalibration | with every image |
+| /ego/state | JSON mjdrive.EgoState | every step: pose, speed, accelerations, jerk, steering, commands, lane errors |
+| /action | JSON mjdrive.Action | every step: the (throttle, steer, brake) applied, exact float64 |
+| /reward | JSON mjdrive.Reward | every step: reward, return, `task.reward_terms` |
+| /physics | protobuf mjdrive.PhysicsState | every step: time, qpos, qvel, act, mocap (exact, for replay) |
+| /episode | JSON mjdrive.EpisodeSummary | once at the end: `task.info` + steps, return, speeds |
+
+/tf, /ego/state, /physics and /scene/road_users also carry the state right after reset (step 0), so they
+hold steps + 1 messages; /action and /reward hold one per step. MCAP metadata "mjdrive" (written first)
+holds what replay needs: task, task and environment kwargs, seed, the task's RNG state at reset, package
+versions; metadata "summary" (written last) repeats /episode. Metadata values are JSON strings.
+"""
+
+from __future__ import annotations
+
+import base64
+import functools
+import io
+import json
+import math
+import os
+import platform
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import foxglove
+import mujoco
+import numpy as np
+from foxglove import messages as fm
+from foxglove.mcap import MCAPCompression, MCAPWriteOptions
+
+from mjdrive.record import proto, scene
+
+FORMAT_VERSION = 1
+CAMERA_FRAME = "camera_front"
+
+
+@dataclass(frozen=True)
+class EnvSpec:
+    """What `suite.load` needs to rebuild the env of a recording."""
+
+    domain: str
+    task: str
+    task_kwargs: dict[str, Any] = field(default_factory=dict)
+    environment_kwargs: dict[str, Any] | None = None
+
+    @property
+    def name(self) -> str:
+        return f"{self.domain}/{self.task}"
+
+
+@dataclass(frozen=True)
+class RecordOptions:
+    """Recorder settings; the defaults cost the least (no camera images)."""
+
+    camera_every: int = 0  # log the front camera every k-th step (0: never)
+    camera: str = "ego/front"
+    camera_size: tuple[int, int] = (240, 320)  # (height, width) [px]
+    image_format: str = "jpeg"  # "jpeg" or "png"
+    jpeg_quality: int = 85
+    chunk_size: int = 256 * 1024  # [bytes] uncompressed MCAP chunk: the most a killed process can lose
+    compression: str | None = "zstd"  # "zstd", "lz4" or None
+
+    def __post_init__(self):
+        if self.image_format not in ("jpeg", "png"):
+            raise ValueError(f"image_format must be 'jpeg' or 'png', got {self.image_format!r}")
+        if self.compression not in ("zstd", "lz4", None):
+            raise ValueError(f"compression must be 'zstd', 'lz4' or None, got {self.compression!r}")
+        if self.camera_every < 0:
+            raise ValueError(f"camera_every must be >= 0, got {self.camera_every}")
+
+
+def episode_filename(spec: EnvSpec, seed: int | None, episode: int, suffix: int = 0) -> str:
+    """`{domain}-{task}_{seed}_{episode:05d}[-{suffix}].mcap`."""
+    extra = f"-{suffix}" if suffix else ""
+    return f"{spec.domain}-{spec.task}_{'noseed' if seed is None else seed}_{episode:05d}{extra}.mcap"
+
+
+def encode_rng_state(state: tuple) -> str:
+    """A numpy RandomState state (MT19937) as JSON."""
+    name, keys, pos, has_gauss, cached = state
+    return json.dumps({"bit_generator": name, "keys": base64.b64encode(np.asarray(keys, "<u4").tobytes()).decode(),
+                       "pos": int(pos), "has_gauss": int(has_gauss), "cached_gaussian": float(cached)})
+
+
+def decode_rng_state(state: str | dict) -> tuple:
+    """The RandomState state tuple of `encode_rng_state`'s JSON (text or parsed)."""
+    d = json.loads(state) if isinstance(state, str) else state
+    keys = np.frombuffer(base64.b64decode(d["keys"]), "<u4").astype(np.uint32)
+    return d["bit_generator"], keys, d["pos"], d["has_gauss"], d["cached_gaussian"]
+
+
+@functools.lru_cache(maxsize=1)
+def package_versions() -> dict[str, str]:
+    """Versions of the packages that decide an episode's numbers (looked up once per process)."""
+    from importlib import metadata
+
+    import mjdrive
+
+    versions = {"mjdrive": mjdrive.__version__, "mujoco": mujoco.__version__, "numpy": np.__version__,
+                "python": platform.python_version()}
+    for dist in ("dm-control", "foxglove-sdk"):
+        try:
+            versions[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            versions[dist] = "unknown"
+    return versions
+
+
+def _json_schema(title: str, properties: dict[str, str]) -> dict:
+    return {"title": title, "type": "object", "properties": {k: {"type": t} for k, t in properties.items()}}
+
+
+def _jsonable(value: Any) -> Any:
+    """Plain JSON values of an info dict entry (numpy scalars and arrays converted), else its repr."""
+    if isinstance(value, (bool, int, float, str)) or value is None:
+        return value
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray) and value.size <= 64:
+        return value.tolist()
+    if isinstance(value, (list, tuple)) and len(value) <= 64:
+        return [_jsonable(v) for v in value]
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    return repr(value)
+
+
+_EGO_STATE = _json_schema("mjdrive.EgoState", {
+    "t": "number", "x": "number", "y": "number", "yaw": "number", "speed": "number", "yaw_rate": "number",
+    "accel_long": "number", "accel_lat": "number", "jerk_long": "number", "jerk_lat": "number", "jerk": "number",
+    "steering_angle": "number", "throttle": "number", "steer": "number", "brake": "number",
+    "lane_offset": "number", "heading_error": "number"})
+_ACTION = _json_schema("mjdrive.Action", {"throttle": "number", "steer": "number", "brake": "number"})
+_REWARD = _json_schema("mjdrive.Reward", {"reward": "number", "return": "number", "terms": "object"})
+_SUMMARY = _json_schema("mjdrive.EpisodeSummary", {"steps": "integer", "return": "number"})
+
+
+class _Channels:
+    """The channels of one recorder, in its own foxglove Context (so recorders never share a sink)."""
+
+    def __init__(self, context: foxglove.Context):
+        def protobuf(topic: str, schema: foxglove.Schema) -> foxglove.Channel:
+            return foxglove.Channel(topic, schema=schema, message_encoding="protobuf", context=context)
+
+        ch = foxglove.channels
+        self.tf = ch.FrameTransformsChannel("/tf", context=context)
+        self.road = protobuf("/scene/road", fm.SceneUpdate.get_schema())
+        self.route = ch.SceneUpdateChannel("/scene/route", context=context)
+        self.ego = ch.SceneUpdateChannel("/scene/ego", context=context)
+        self.users = protobuf("/scene/road_users", fm.SceneUpdate.get_schema())
+        self.image = ch.CompressedImageChannel("/camera/front", context=context)
+        self.calibration = ch.CameraCalibrationChannel("/camera/front/calibration", context=context)
+        self.state = foxglove.Channel("/ego/state", schema=_EGO_STATE, context=context)
+        self.action = foxglove.Channel("/action", schema=_ACTION, context=context)
+        self.reward = foxglove.Channel("/reward", schema=_REWARD, context=context)
+        self.physics = protobuf("/physics", foxglove.Schema(
+            name=proto.PHYSICS_SCHEMA_NAME, encoding="protobuf", data=proto.physics_schema_data()))
+        self.episode = foxglove.Channel("/episode", schema=_SUMMARY, context=context)
+
+
+def _ns(seconds: float) -> int:
+    return int(round(seconds * 1e9))
+
+
+def _timestamp(ns: int) -> fm.Timestamp:
+    return fm.Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
+
+
+class EpisodeRecorder:
+    """Writes one MCAP file per episode into `out_dir` (see the module doc for names and topics).
+
+    begin(task, physics, seed=..., rng_state=...) after a reset, step(task, physics, action, reward,
+    terminated=..., truncated=...) after every env step (ends the episode when either is True), end() to
+    close an episode early (marked interrupted), close() when done. `paths` lists the finished files.
+    """
+
+    def __init__(self, out_dir: str | Path, spec: EnvSpec, options: RecordOptions | None = None,
+                 first_episode: int = 0):
+        self.out_dir = Path(out_dir)
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        self.spec = spec
+        self.options = options or RecordOptions()
+        self.episode = first_episode - 1
+        self.paths: list[Path] = []
+        self._context = foxglove.Context()
+        self._channels = _Channels(self._context)
+        self._writer = None
+        self._part: Path | None = None
+        self._road_cache: tuple[Any, bytes] | None = None  # (road map, encoded /scene/road)
+        self._model_cache: tuple[Any, dict] | None = None  # (model, per-model constants)
+        self._cubes = proto.CubeListEncoder()
+        self._renderer = None  # (model, CameraRenderer) for camera images
+        self._last_task_info: dict | None = None
+        self._kind_colors = scene.KindColors()
+        self._task_kwargs_json, self.replayable = self._kwargs_json(spec.task_kwargs)
+        env_json, env_ok = self._kwargs_json(spec.environment_kwargs)
+        self._environment_kwargs_json, self.replayable = env_json, self.replayable and env_ok
+        compression = {"zstd": MCAPCompression.Zstd, "lz4": MCAPCompression.Lz4, None: None}[self.options.compression]
+        self._write_options = MCAPWriteOptions(compression=compression, chunk_size=self.options.chunk_size,
+                                               profile="", compression_threads=0)
+
+    @staticmethod
+    def _kwargs_json(kwargs: dict | None) -> tuple[str, bool]:
+        try:
+            return json.dumps(kwargs), True
+        except TypeError:
+            return json.dumps(_jsonable(kwargs)), False
+
+    @property
+    def recording(self) -> bool:
+        """An episode file is open."""
+        return self._writer is not None
+
+    # --- files --------------------------------------------------------------------------------------------
+    def _claim(self, seed: int | None) -> Path:
+        """Create `NAME.mcap.part` exclusively, for the first NAME not taken; returns the part path."""
+        for suffix in range(10_000):
+            name = episode_filename(self.spec, seed, self.episode, suffix)
+            final, part = self.out_dir / name, self.out_dir / (name + ".part")
+            if final.exists():
+                continue
+            try:
+                os.close(os.open(part, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644))
+            except FileExistsError:
+                continue
+            return part
+        raise RuntimeError(f"no free file name for episode {self.episode} in {self.out_dir}")
+
+    def _publish(self, part: Path) -> Path:
+        """Rename a closed `.part` to its final name without overwriting anything; returns the final path."""
+        base = part.name[: -len(".mcap.part")]
+        for suffix in range(10_000):
+            final = part.with_name(f"{base}{f'-{suffix}' if suffix else ''}.mcap")
+            try:
+                os.link(part, final)
+            except FileExistsError:
+                continue
+            except OSError:  # no hard links on this file system: rename (may replace a file raced in)
+                if final.exists():
+                    continue
+                os.replace(part, final)
+                return final
+            os.unlink(part)
+            return final
+        raise RuntimeError(f"could not publish {part}")
+
+    # --- episode ------------------------------------------------------------------------------------------
+    def begin(self, task, physics, *, seed: int | None = None, rng_state: tuple | None = None,
+              extra: dict[str, Any] | None = None) -> Path:
+        """Open the next episode's file (right after the env's reset) and log the static scene and the
+        initial state. `rng_state`: `task.random.get_state()` taken just before that reset (for replay)."""
+        if self._writer is not None:
+            self.end(interrupted=True)
+        self.episode += 1
+        self._part = self._claim(seed)
+        self._writer = foxglove.open_mcap(self._part, allow_overwrite=True, context=self._context,
+                                          writer_options=self._write_options)
+        data, model = physics.data.ptr, physics.model.ptr
+        self._t0 = time.time_ns()
+        self._seed, self._steps, self._return = seed, 0, 0.0
+        self._speed_sum, self._max_jerk, self._max_accel_lat = 0.0, 0.0, 0.0
+        self._prev_accel: tuple[float, float] | None = None
+        self._prev_time = float(data.time)
+        self._users_shown = False
+        c = self._model_constants(task, model)
+        meta = {
+            "format_version": FORMAT_VERSION, "task": self.spec.name, "domain": self.spec.domain,
+            "task_name": self.spec.task, "episode": self.episode, "seed": seed,
+            "rng_state": None if rng_state is None else json.loads(encode_rng_state(rng_state)),
+            "replayable": self.replayable and (seed is not None or rng_state is not None),
+            "start_time_ns": self._t0, "physics_timestep": float(model.opt.timestep),
+            "nq": model.nq, "nv": model.nv, "na": model.na, "nmocap": model.nmocap,
+            "vehicle": task.params.name, "camera_every": self.options.camera_every,
+            "versions": dict(package_versions()), "host": platform.node(), "pid": os.getpid(), **(extra or {}),
+        }
+        metadata = {key: json.dumps(value) for key, value in meta.items()}
+        metadata["task_kwargs"], metadata["environment_kwargs"] = self._task_kwargs_json, self._environment_kwargs_json
+        self._writer.write_metadata("mjdrive", metadata)
+        ns = self._t0 + _ns(data.time)
+        self._channels.road.log(self._road_bytes(task.road_map), log_time=ns)
+        stamp = _timestamp(ns)
+        self._channels.route.log(fm.SceneUpdate(entities=scene.route_entities(task, stamp)), log_time=ns)
+        p = task.params
+        ego = scene.ego_entity(p.length, p.width, p.height, stamp)
+        self._channels.ego.log(fm.SceneUpdate(entities=[ego]), log_time=ns)
+        self._log_state(task, data, c, None, ns)
+        return self._part
+
+    def step(self, task, physics, action, reward: float, *, terminated: bool = False,
+             truncated: bool = False) -> Path | None:
+        """Log one env step (the action applied, its reward, the state after it). Ends the episode when
+        `terminated` or `truncated`, returning the finished file's path; else None."""
+        if self._writer is None:
+            raise RuntimeError("EpisodeRecorder.step before begin()")
+        data = physics.data.ptr
+        c = self._model_cache[1]
+        action_ns = self._t0 + _ns(self._prev_time)
+        ns = self._t0 + _ns(data.time)
+        self._steps += 1
+        reward = float(reward)
+        self._return += reward
+        ch = self._channels
+        a0, a1, a2 = float(action[0]), float(action[1]), float(action[2])
+        ch.action.log(json.dumps({"throttle": a0, "steer": a1, "brake": a2}).encode(), log_time=action_ns)
+        terms = {k: float(v) for k, v in task.reward_terms.items()}
+        ch.reward.log(json.dumps({"reward": reward, "return": self._return, "terms": terms}).encode(), log_time=ns)
+        self._log_state(task, data, c, (a0, a1, a2), ns)
+        if terminated or truncated:
+            return self.end(terminated=terminated, truncated=truncated, task=task)
+        return None
+
+    def end(self, *, terminated: bool = False, truncated: bool = False, interrupted: bool = False,
+            task=None) -> Path | None:
+        """Write the summary, close the file and give it its final name; returns that path (None if no
+        episode was open). `interrupted`: the episode stopped before the env ended it."""
+        if self._writer is None:
+            return None
+        info = getattr(task, "info", None) if task is not None else self._last_task_info
+        summary = {
+            "task": self.spec.name, "episode": self.episode, "seed": self._seed, "steps": self._steps,
+            "return": self._return, "terminated": bool(terminated), "truncated": bool(truncated),
+            "interrupted": bool(interrupted), "sim_time": self._prev_time,
+            "mean_speed": self._speed_sum / max(self._steps, 1), "max_abs_jerk": self._max_jerk,
+            "max_abs_accel_lat": self._max_accel_lat,
+            "info": {str(k): _jsonable(v) for k, v in (info or {}).items()},
+        }
+        ns = self._t0 + _ns(self._prev_time)
+        self._channels.episode.log(json.dumps(summary).encode(), log_time=ns)
+        self._writer.write_metadata("summary", {k: json.dumps(v) for k, v in summary.items()})
+        self._writer.close()
+        self._writer = None
+        final = self._publish(self._part)
+        self._part = None
+        self.paths.append(final)
+        return final
+
+    def close(self) -> None:
+        """End an open episode (interrupted) and free the camera renderer."""
+        self.end(interrupted=True)
+        self._close_renderer()
+
+    def _close_renderer(self) -> None:
+        if self._renderer is not None:
+            self._renderer[1].close()
+            self._renderer = None
+
+    # --- per step -----------------------------------------------------------------------------------------
+    def _model_constants(self, task, model) -> dict:
+        """Addresses and encoders of a model (cached), and the camera pose in the chassis frame."""
+        if self._model_cache is None or self._model_cache[0] is not model:
+            root = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, task.vehicle.prefix + "root")
+            camera = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, self.options.camera)
+            c = {"model": model, "q": int(model.jnt_qposadr[root]), "camera": camera,
+                 "physics": proto.PhysicsStateEncoder(model.nq, model.nv, model.na, model.nmocap)}
+            if camera >= 0:
+                c["camera_tf"] = _camera_in_chassis(model, task.vehicle.body_id, camera)
+                h, w = self.options.camera_size
+                f = 0.5 * h / math.tan(math.radians(float(model.cam_fovy[camera])) / 2)
+                c["K"] = [f, 0.0, w / 2, 0.0, f, h / 2, 0.0, 0.0, 1.0]
+                c["P"] = [f, 0.0, w / 2, 0.0, 0.0, f, h / 2, 0.0, 0.0, 0.0, 1.0, 0.0]
+            self._model_cache = (model, c)
+        return self._model_cache[1]
+
+    def _road_bytes(self, road_map) -> bytes:
+        if self._road_cache is None or self._road_cache[0] is not road_map:
+            self._road_cache = (road_map, fm.SceneUpdate(entities=scene.road_entities(road_map)).encode())
+        return self._road_cache[1]
+
+    def _log_state(self, task, data, c: dict, action: tuple[float, float, float] | None, ns: int) -> None:
+        ch = self._channels
+        t = float(data.time)
+        vehicle = task.vehicle
+        q = data.qpos
+        a = c["q"]
+        stamp = _timestamp(ns)
+        transforms = [fm.FrameTransform(
+            timestamp=stamp, parent_frame_id=scene.WORLD, child_frame_id=scene.EGO,
+            translation=fm.Vector3(x=float(q[a]), y=float(q[a + 1]), z=float(q[a + 2])),
+            rotation=fm.Quaternion(w=float(q[a + 3]), x=float(q[a + 4]), y=float(q[a + 5]), z=float(q[a + 6])))]
+        if c["camera"] >= 0:
+            (px, py, pz), (qw, qx, qy, qz) = c["camera_tf"]
+            transforms.append(fm.FrameTransform(
+                timestamp=stamp, parent_frame_id=scene.EGO, child_frame_id=CAMERA_FRAME,
+                translation=fm.Vector3(x=px, y=py, z=pz), rotation=fm.Quaternion(w=qw, x=qx, y=qy, z=qz)))
+        ch.tf.log(fm.FrameTransforms(transforms=transforms), log_time=ns)
+
+        x, y, yaw = vehicle.pose(data)
+        speed = vehicle.speed(data)
+        accel_long, accel_lat = vehicle.acceleration(data)
+        dt = t - self._prev_time
+        if self._prev_accel is None or dt <= 0.0:
+            jerk_long = jerk_lat = 0.0
+        else:
+            jerk_long, jerk_lat = (accel_long - self._prev_accel[0]) / dt, (accel_lat - self._prev_accel[1]) / dt
+        jerk = math.hypot(jerk_long, jerk_lat)
+        self._prev_accel, self._prev_time = (accel_long, accel_lat), t
+        if action is not None:
+            self._speed_sum += speed
+            self._max_jerk = max(self._max_jerk, jerk)
+            self._max_accel_lat = max(self._max_accel_lat, abs(accel_lat))
+        lane_offset = getattr(task, "lane_offset", None)
+        heading_error = getattr(task, "heading_error", None)
+        if lane_offset is None or heading_error is None:  # a task without its own lane frame: ask the map
+            query = task.road_map.locate((x, y), yaw)
+            lane_offset, heading_error = query.d, query.heading_error
+        throttle, steer, brake = action if action is not None else (0.0, 0.0, 0.0)
+        state = {"t": t, "x": x, "y": y, "yaw": yaw, "speed": speed, "yaw_rate": vehicle.yaw_rate(data),
+                 "accel_long": accel_long, "accel_lat": accel_lat, "jerk_long": jerk_long, "jerk_lat": jerk_lat,
+                 "jerk": jerk, "steering_angle": vehicle.steering_angle(data), "throttle": throttle,
+                 "steer": steer, "brake": brake, "lane_offset": float(lane_offset),
+                 "heading_error": float(heading_error)}
+        ch.state.log(json.dumps(state).encode(), log_time=ns)
+        ch.physics.log(c["physics"].encode(data), log_time=ns)
+
+        users = task.road_users()
+        if len(users.kinds) or self._users_shown:
+            body = self._cubes.encode(users.poses, users.half_sizes, self._kind_colors(users.kinds))
+            head = proto.entity_head(ns, scene.WORLD, "road_users")
+            ch.users.log(proto.scene_update_bytes(head, body), log_time=ns)
+            self._users_shown = len(users.kinds) > 0
+        every = self.options.camera_every
+        if every and c["camera"] >= 0 and self._steps % every == 0:
+            self._log_image(task, c, data, stamp, ns)
+        self._last_task_info = task.info
+
+    def _log_image(self, task, c: dict, data, stamp: fm.Timestamp, ns: int) -> None:
+        from PIL import Image
+
+        h, w = self.options.camera_size
+        if self._renderer is None or self._renderer[0] is not c["model"]:
+            from mjdrive.sensors import CameraRenderer
+
+            self._close_renderer()
+            self._renderer = (c["model"], CameraRenderer(c["model"], self.options.camera, h, w))
+        pixels = self._renderer[1].render(data)
+        buffer = io.BytesIO()
+        if self.options.image_format == "jpeg":
+            Image.fromarray(pixels).save(buffer, format="JPEG", quality=self.options.jpeg_quality)
+        else:
+            Image.fromarray(pixels).save(buffer, format="PNG", compress_level=1)
+        self._channels.image.log(fm.CompressedImage(timestamp=stamp, frame_id=CAMERA_FRAME, data=buffer.getvalue(),
+                                                    format=self.options.image_format), log_time=ns)
+        self._channels.calibration.log(fm.CameraCalibration(
+            timestamp=stamp, frame_id=CAMERA_FRAME, width=w, height=h, distortion_model="plumb_bob",
+            D=[0.0] * 5, K=c["K"], R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], P=c["P"]), log_time=ns)
+
+
+def _camera_in_chassis(model: mujoco.MjModel, body: int, camera: int) -> tuple[tuple, tuple]:
+    """(position [m], quaternion wxyz) of a camera's optical frame (z forward, x right, y down: Foxglove's
+    convention; MuJoCo cameras look along -z with y up) in the chassis frame, from the model's qpos0 pose."""
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    rb, pb = data.xmat[body].reshape(3, 3), data.xpos[body]
+    rc, pc = data.cam_xmat[camera].reshape(3, 3), data.cam_xpos[camera]
+    position = rb.T @ (pc - pb)
+    rotation = rb.T @ rc @ np.diag([1.0, -1.0, -1.0])
+    quat = np.empty(4)
+    mujoco.mju_mat2Quat(quat, rotation.ravel())
+    return tuple(float(v) for v in position), tuple(float(v) for v in quat)
+

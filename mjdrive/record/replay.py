@@ -1,0 +1,121 @@
+"""Re-simulate a recorded episode from its metadata (task, kwargs, RNG state or seed) and its actions, and
+check every logged state (time, qpos, qvel, act, mocap) and reward bit for bit; optionally render a video."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from mjdrive.record.reader import EpisodeFileError, read_episode
+from mjdrive.record.recorder import decode_rng_state
+
+STATE_FIELDS = ("time", "qpos", "qvel", "act", "mocap_pos", "mocap_quat")
+
+
+@dataclass
+class ReplayResult:
+    """Outcome of `replay`: steps in the file, steps compared, and the first mismatch if any."""
+
+    path: Path
+    steps: int
+    checked: int
+    complete: bool  # the file was intact (an incomplete file is checked up to its damage)
+    mismatch_step: int | None = None  # first step whose state or reward differs (0: the reset state)
+    mismatch_fields: list[str] = field(default_factory=list)
+    max_abs_diff: dict[str, float] = field(default_factory=dict)
+    video: Path | None = None
+    damage: str | None = None  # what is wrong with an incomplete file
+
+    @property
+    def match(self) -> bool:
+        """Every logged step re-simulated identically, and the file was complete."""
+        return self.complete and self.mismatch_step is None and self.checked == self.steps
+
+    def report(self) -> str:
+        if self.mismatch_step is not None:
+            diffs = ", ".join(f"{k} {v:.3g}" for k, v in self.max_abs_diff.items() if v > 0)
+            text = (f"MISMATCH at step {self.mismatch_step} of {self.steps} ({', '.join(self.mismatch_fields)}); "
+                    f"max |difference| over the episode: {diffs or '-'}")
+        else:
+            text = f"match: {self.checked} steps, every state (time, qpos, qvel, act, mocap) and reward bit for bit"
+        if not self.complete:
+            text = f"{self.damage}\nchecked only those steps: {text}; the episode cannot be fully verified"
+        return f"replay {self.path}: {text}" + (f"; video {self.video}" if self.video else "")
+
+
+def _physics_state(data) -> dict[str, np.ndarray]:
+    return {"time": np.array([data.time]), "qpos": data.qpos.copy(), "qvel": data.qvel.copy(),
+            "act": data.act.copy(), "mocap_pos": data.mocap_pos.ravel().copy(),
+            "mocap_quat": data.mocap_quat.ravel().copy()}
+
+
+def replay(path: str | Path, video: str | Path | None = None) -> ReplayResult:
+    """Rebuild the env of `path`, replay its actions and compare. Raises EpisodeFileError when the file
+    cannot be replayed (not an episode, no seed or RNG state, kwargs that were not JSON)."""
+    from mjdrive.envs.gym_env import DrivingGymEnv
+
+    episode = read_episode(path, topics={"/action", "/physics", "/reward"})
+    meta = episode.metadata
+    if not meta.get("replayable", False):
+        raise EpisodeFileError(f"{path} cannot be replayed: it records no seed or RNG state, or its kwargs "
+                               "were not JSON-serialisable")
+    if not episode.messages.get("/physics"):
+        damage = episode.describe_damage() if not episode.complete else f"{path} holds no states"
+        raise EpisodeFileError(f"{damage} No state survived: nothing to replay.")
+    physics_log = episode.physics()
+    actions = episode.actions()
+    rewards = [r["reward"] for r in episode.json("/reward")]
+    steps = min(len(actions), len(rewards), len(physics_log["time"]) - 1)
+
+    env = DrivingGymEnv(meta["domain"], meta["task_name"], meta.get("task_kwargs") or {},
+                        meta.get("environment_kwargs"))
+    try:
+        if meta.get("rng_state") is not None:
+            env.task.random.set_state(decode_rng_state(meta["rng_state"]))
+        else:
+            env.task.seed(meta["seed"])
+        env.dm_env.reset()
+        data = env.dm_env.physics.data.ptr
+        writer = None
+        if video is not None:
+            from mjdrive.video import EpisodeVideo
+
+            writer = EpisodeVideo(env, video)
+        result = ReplayResult(Path(path), len(actions), 0, episode.complete, video=Path(video) if video else None,
+                              damage=None if episode.complete else episode.describe_damage())
+        result.max_abs_diff = {name: 0.0 for name in (*STATE_FIELDS, "reward")}
+
+        def compare(k: int, reward: float | None) -> None:
+            state = _physics_state(data)
+            bad = []
+            for name in STATE_FIELDS:
+                logged = physics_log[name][k]
+                if state[name].shape != logged.shape:
+                    bad.append(name)
+                    result.max_abs_diff[name] = float("inf")
+                    continue
+                if state[name].tobytes() != logged.tobytes():
+                    bad.append(name)
+                    result.max_abs_diff[name] = max(result.max_abs_diff[name],
+                                                    float(np.max(np.abs(state[name] - logged))))
+            if reward is not None and float(reward) != rewards[k - 1]:
+                bad.append("reward")
+                result.max_abs_diff["reward"] = max(result.max_abs_diff["reward"], abs(float(reward) - rewards[k - 1]))
+            if bad and result.mismatch_step is None:
+                result.mismatch_step, result.mismatch_fields = k, bad
+
+        compare(0, None)
+        for k in range(steps):
+            if writer:
+                writer.add_frame()
+            timestep = env.dm_env.step(actions[k])
+            compare(k + 1, timestep.reward or 0.0)
+            result.checked = k + 1
+        if writer:
+            writer.add_frame()
+            writer.close()
+        return result
+    finally:
+        env.close()

@@ -1,0 +1,152 @@
+"""3D scene content for Foxglove: the road (once per file, encoded once per map), the route and its
+waypoints (once per episode), the ego box (locked to the "ego" frame) and road-user colours."""
+
+from __future__ import annotations
+
+import zlib
+
+import numpy as np
+from foxglove import messages as fm
+
+from mjdrive.roads import Marking, RoadMap
+
+WORLD, EGO = "world", "ego"  # frame ids
+ROAD_Z, MARKING_Z, ROUTE_Z = 0.01, 0.02, 0.05  # [m] drawing heights (above MuJoCo's road meshes)
+MARKING_WIDTH = 0.15  # [m]
+DASH_ON, DASH_OFF = 3.0, 6.0  # [m] broken-line pattern, as in world.py
+
+ASPHALT = (0.32, 0.32, 0.34, 1.0)
+PAVED_AREA = (0.36, 0.36, 0.38, 1.0)
+WHITE = (0.95, 0.95, 0.95, 1.0)
+ROUTE = (0.1, 0.6, 1.0, 0.9)
+WAYPOINT = (0.1, 0.9, 0.2, 0.9)
+EGO_RGBA = (0.9, 0.3, 0.1, 0.9)
+KIND_RGBA = {  # road users by kind; other kinds get a stable colour from their name
+    "car": (0.2, 0.45, 0.9, 1.0), "truck": (0.55, 0.35, 0.2, 1.0), "bus": (0.95, 0.75, 0.1, 1.0),
+    "motorcycle": (0.7, 0.2, 0.8, 1.0), "bicycle": (0.2, 0.8, 0.7, 1.0), "cyclist": (0.2, 0.8, 0.7, 1.0),
+    "pedestrian": (0.95, 0.3, 0.5, 1.0), "obstacle": (0.5, 0.5, 0.5, 1.0),
+}
+
+
+def color(rgba: tuple[float, float, float, float]) -> fm.Color:
+    return fm.Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
+
+
+def kind_rgba(kind: str) -> tuple[float, float, float, float]:
+    """Colour of a road-user kind (known kinds fixed, others hashed from the name)."""
+    if kind in KIND_RGBA:
+        return KIND_RGBA[kind]
+    h = zlib.crc32(kind.encode())
+    return (0.3 + 0.6 * (h & 0xFF) / 255, 0.3 + 0.6 * (h >> 8 & 0xFF) / 255, 0.3 + 0.6 * (h >> 16 & 0xFF) / 255, 1.0)
+
+
+class KindColors:
+    """(N,4) colours of a tuple of kinds, cached per distinct tuple (kinds rarely change between steps)."""
+
+    def __init__(self):
+        self._cache: dict[tuple[str, ...], np.ndarray] = {}
+
+    def __call__(self, kinds: tuple[str, ...]) -> np.ndarray:
+        rgba = self._cache.get(kinds)
+        if rgba is None:
+            if len(self._cache) > 256:
+                self._cache.clear()
+            rgba = self._cache[kinds] = np.array([kind_rgba(k) for k in kinds], np.float64).reshape(-1, 4)
+        return rgba
+
+
+def _points(xy: np.ndarray, z: float) -> list[fm.Point3]:
+    return [fm.Point3(x=float(x), y=float(y), z=z) for x, y in xy]
+
+
+def _strip_triangles(left: np.ndarray, right: np.ndarray, base: int) -> np.ndarray:
+    """Indices (2(N-1)*3,) of the triangles between two polylines stored interleaved from `base`."""
+    i = np.arange(len(left) - 1)
+    l0, r0 = base + 2 * i, base + 2 * i + 1
+    return np.stack([l0, r0, l0 + 2, r0, r0 + 2, l0 + 2], 1).ravel()
+
+
+def _dashes(line: np.ndarray) -> list[np.ndarray]:
+    """DASH_ON pieces of a polyline separated by DASH_OFF gaps."""
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(line, axis=0).T))])
+    pieces = []
+    for start in np.arange(0.0, s[-1], DASH_ON + DASH_OFF):
+        ss = np.linspace(start, min(start + DASH_ON, s[-1]), 4)
+        pieces.append(np.stack([np.interp(ss, s, line[:, 0]), np.interp(ss, s, line[:, 1])], 1))
+    return pieces
+
+
+def _segments(line: np.ndarray) -> np.ndarray:
+    """(2(N-1),2) endpoints of a polyline's segments, for a LineList."""
+    return np.stack([line[:-1], line[1:]], 1).reshape(-1, 2)
+
+
+def road_entities(road_map: RoadMap) -> list[fm.SceneEntity]:
+    """Lane surfaces and paved areas (triangle lists), markings (line lists, solid and dashed), crosswalks."""
+    points: list[np.ndarray] = []
+    indices: list[np.ndarray] = []
+    count = 0
+    for lane in road_map.lanes:
+        left, right = lane.left_edge(), lane.right_edge()
+        pts = np.empty((2 * len(left), 2))
+        pts[0::2], pts[1::2] = left, right
+        points.append(pts)
+        indices.append(_strip_triangles(left, right, count))
+        count += len(pts)
+    surface = fm.TriangleListPrimitive(
+        points=_points(np.concatenate(points), ROAD_Z) if points else [],
+        indices=np.concatenate(indices).tolist() if indices else [], color=color(ASPHALT))
+    areas = []
+    for polygon in road_map.areas:  # convex polygons: triangle fans
+        k = len(polygon)
+        fan = np.stack([np.zeros(k - 2, int), np.arange(1, k - 1), np.arange(2, k)], 1).ravel()
+        areas.append(fm.TriangleListPrimitive(points=_points(np.asarray(polygon), ROAD_Z + 0.002),
+                                              indices=fan.tolist(), color=color(PAVED_AREA)))
+    solid, broken = [], []
+    for line, kind in road_map.marking_lines():
+        line = np.asarray(line, float)
+        if len(line) < 2 or kind == Marking.NONE:
+            continue
+        if kind == Marking.SOLID:
+            solid.append(_segments(line))
+        else:
+            broken.extend(_segments(piece) for piece in _dashes(line))
+    lines = [fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineList, thickness=MARKING_WIDTH,
+                              points=_points(np.concatenate(group), MARKING_Z), color=color(WHITE))
+             for group in (solid, broken) if group]
+    crosswalks = []
+    for cw in getattr(road_map, "crosswalks", []):
+        corners = cw.polygon()
+        crosswalks.append(fm.TriangleListPrimitive(points=_points(corners, MARKING_Z), indices=[0, 1, 2, 0, 2, 3],
+                                                   color=color((0.85, 0.85, 0.85, 0.6))))
+    return [
+        fm.SceneEntity(frame_id=WORLD, id="road/surface", triangles=[surface, *areas]),
+        fm.SceneEntity(frame_id=WORLD, id="road/markings", lines=lines),
+        fm.SceneEntity(frame_id=WORLD, id="road/crosswalks", triangles=crosswalks),
+    ]
+
+
+def route_entities(task, stamp: fm.Timestamp | None = None) -> list[fm.SceneEntity]:
+    """The task's route centre line (`task.route_lane`) and waypoints (`task.tracker.points`), if any."""
+    entities = []
+    route_lane = getattr(task, "route_lane", None)
+    if route_lane is not None:
+        entities.append(fm.SceneEntity(timestamp=stamp, frame_id=WORLD, id="route/line", lines=[fm.LinePrimitive(
+            type=fm.LinePrimitiveLineType.LineStrip, thickness=0.3,
+            points=_points(np.asarray(route_lane.centre), ROUTE_Z), color=color(ROUTE))]))
+    tracker = getattr(task, "tracker", None)
+    if tracker is not None and len(tracker.points):
+        size = fm.Vector3(x=0.6, y=0.6, z=0.1)
+        spheres = [fm.SpherePrimitive(pose=fm.Pose(position=fm.Vector3(x=float(x), y=float(y), z=ROUTE_Z),
+                                                   orientation=fm.Quaternion(w=1.0)),
+                                      size=size, color=color(WAYPOINT)) for x, y in tracker.points]
+        entities.append(fm.SceneEntity(timestamp=stamp, frame_id=WORLD, id="route/waypoints", spheres=spheres))
+    return entities
+
+
+def ego_entity(length: float, width: float, height: float, stamp: fm.Timestamp | None = None) -> fm.SceneEntity:
+    """The ego car as a box in its own frame (origin on the ground at the footprint centre)."""
+    cube = fm.CubePrimitive(
+        pose=fm.Pose(position=fm.Vector3(z=height / 2), orientation=fm.Quaternion(w=1.0)),
+        size=fm.Vector3(x=length, y=width, z=height), color=color(EGO_RGBA))
+    return fm.SceneEntity(timestamp=stamp, frame_id=EGO, id="ego", frame_locked=True, cubes=[cube])

@@ -1,0 +1,103 @@
+"""Cost of recording: env throughput with and without `RecordEpisodes` (no camera images unless asked).
+
+    python tools/bench_record.py --tasks waypoints/straight waypoints/random_routes --out results/bench_record.md
+
+Both runs drive the same env instance with the pure-pursuit driver; only the time inside reset/step is
+counted (the policy is excluded), episodes included (file open, road scene, summary, rename). Rounds of
+plain and recorded driving alternate so that machine noise hits both alike; the medians are reported.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import shutil
+import statistics
+import tempfile
+import time
+
+import mujoco
+
+from mjdrive.envs import make_env
+from mjdrive.policies import make_policy
+from mjdrive.record import RecordEpisodes, RecordOptions
+
+
+def _drive(env, policy, seconds: float, seed: int) -> tuple[float, int, int]:
+    """(env seconds, env steps, episodes) over about `seconds` of env time."""
+    spent, steps, episodes = 0.0, 0, 0
+    while spent < seconds:
+        start = time.perf_counter()
+        observation, _ = env.reset(seed=seed + episodes)
+        spent += time.perf_counter() - start
+        episodes += 1
+        while True:
+            action = policy(observation)
+            start = time.perf_counter()
+            observation, _, terminated, truncated, _ = env.step(action)
+            spent += time.perf_counter() - start
+            steps += 1
+            if terminated or truncated or spent >= seconds:
+                break
+    return spent, steps, episodes
+
+
+def bench_task(name: str, rounds: int, seconds: float, options: RecordOptions) -> dict:
+    domain, task = name.split("/")
+    env = make_env(domain, task)
+    policy = make_policy("pure_pursuit", env)
+    out = tempfile.mkdtemp(prefix="bench_record_")
+    recorded = RecordEpisodes(env, out, options)
+    plain_rates, rec_rates, files, episodes = [], [], 0, 0
+    try:
+        _drive(env, policy, 0.5, 0)  # warm-up both paths
+        _drive(recorded, policy, 0.5, 0)
+        for r in range(rounds):
+            spent, steps, _ = _drive(env, policy, seconds, 1000 * r)
+            plain_rates.append(steps / spent)
+            spent, steps, n = _drive(recorded, policy, seconds, 1000 * r)
+            rec_rates.append(steps / spent)
+            episodes += n
+        recorded.close()
+        files = len(recorded.recorder.paths)
+    finally:
+        shutil.rmtree(out, ignore_errors=True)
+    plain, rec = statistics.median(plain_rates), statistics.median(rec_rates)
+    return {"task": name, "plain": plain, "recorded": rec, "ratio": rec / plain,
+            "overhead_ms": 1e3 / rec - 1e3 / plain, "files": files, "episodes": episodes}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", nargs="+", default=["waypoints/straight", "waypoints/four_routes",
+                                                       "waypoints/random_routes"])
+    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--seconds", type=float, default=2.0, help="env time per round and mode [s]")
+    parser.add_argument("--camera-every", type=int, default=0)
+    parser.add_argument("--out", default=None)
+    args = parser.parse_args()
+    options = RecordOptions(camera_every=args.camera_every)
+    lines = [
+        f"# Recording cost ({platform.processor() or platform.machine()}, mujoco {mujoco.__version__}, one thread)",
+        "",
+        f"`python tools/bench_record.py {' '.join(f'--tasks {t}' for t in args.tasks[:1])} ...` "
+        f"({args.rounds} alternating rounds of {args.seconds:.0f} s env time per mode, medians; "
+        f"camera images {f'every {args.camera_every} steps' if args.camera_every else 'off'}).",
+        "",
+        "| task | env [steps/s] | env + recording [steps/s] | recorded / plain | recording [ms/step] | files |",
+        "| --- | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for name in args.tasks:
+        r = bench_task(name, args.rounds, args.seconds, options)
+        lines.append(f"| {name} | {r['plain']:,.0f} | {r['recorded']:,.0f} | {r['ratio']:.0%} "
+                     f"| {r['overhead_ms']:.3f} | {r['files']} |")
+        print(lines[-1], flush=True)
+    report = "\n".join(lines)
+    print(report)
+    if args.out:
+        with open(args.out, "w") as f:
+            f.write(report + "\n")
+
+
+if __name__ == "__main__":
+    main()
