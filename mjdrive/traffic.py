@@ -1,0 +1,806 @@
+"""Kinematic traffic on a road map's lane graph, all road users as numpy arrays (no Python loop per user).
+
+Road users are MuJoCo mocap boxes (`world.TrafficSlot`, one per slot, fixed count and kind per slot at build
+time) whose geoms collide with the ego only, so the ego hitting one is a real contact.
+
+Vehicles (cars, motorcycles, bicycles; `ROAD_USER_TYPES` gives each its size, desired speed range and IDM
+parameters) follow lanes at a lateral offset of their own (bicycles keep right) and choose a random
+successor at every lane end. Their acceleration is the Intelligent Driver Model (IDM) against the most
+constraining of:
+  * leaders on their planned path (the next lanes), the ego included when it is on a lane;
+  * anything in a short corridor ahead of them (curvature-corrected): the ego anywhere on the road,
+    pedestrians, vehicles changing lane or leaving the ring;
+  * a stop line before a crosswalk where a pedestrian walks in their lane's band;
+  * a stop line at a merge (a roundabout entry) while a circulating vehicle, or the ego, would reach the
+    merge point within `accept_gap` seconds (gap acceptance; the entering vehicle yields).
+Speeds respect the lane speed limit and a lateral-acceleration cap in curves. Vehicles change to a
+same-direction neighbour lane (across a broken line) at random when the target lane has room, moving over
+smoothly along `lane_change_length` metres. Vehicles leave the map at dead ends and respawn at the map's
+sources (lanes without predecessors) when the source is clear, so the count stays at its target.
+
+Pedestrians shuttle across their crosswalk on one of three tracks (so two never overlap): they wait at the
+kerb for a random time, then for a gap (no vehicle, ego included, that could not stop comfortably before
+the crosswalk), then walk across at their own speed; vehicles stop for them.
+
+Time: decisions (IDM accelerations, lane changes, spawns, pedestrian starts) every `decision_period`
+seconds; between decisions the motion is integrated in closed form at `substep` resolution for all users
+at once, and `advance` (called every substep, e.g. by `Physics.substep_callback`) writes the poses of the
+current substep into mocap_pos / mocap_quat. Seeded by the np.random.Generator given to `reset`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from mjdrive.roads import RoadMap
+from mjdrive.traffic_map import TrafficMap
+from mjdrive.world import TrafficSlot
+
+PATH = 4  # lanes held in each vehicle's planned path (the current one and the next three)
+HIDDEN_Z = -50.0  # [m] where inactive slots wait (below the ground, never seen, never touched)
+N_TRACKS = 3  # pedestrian tracks per crosswalk
+
+
+@dataclass(frozen=True)
+class RoadUserType:
+    """A kind of road user: box half sizes [m], colour, desired speed range [m/s] (walking speed for
+    pedestrians) and IDM parameters: max acceleration a [m/s^2], comfortable deceleration b [m/s^2],
+    time headway T [s]; preferred lateral offset range in the lane [m] (> 0 left)."""
+
+    name: str
+    half_size: tuple[float, float, float]
+    rgba: tuple[float, float, float, float]
+    speed: tuple[float, float]
+    accel: float = 1.5
+    decel: float = 2.5
+    headway: float = 1.0
+    lateral: tuple[float, float] = (0.0, 0.0)
+
+    @property
+    def slot(self) -> TrafficSlot:
+        return TrafficSlot(self.name, self.half_size, self.rgba)
+
+    @property
+    def is_vehicle(self) -> bool:
+        return self.name != "pedestrian"
+
+
+ROAD_USER_TYPES: dict[str, RoadUserType] = {
+    "car": RoadUserType("car", (2.25, 0.9, 0.75), (0.75, 0.15, 0.12, 1.0), (6.5, 8.33), 1.5, 2.5, 1.0,
+                        (-0.2, 0.2)),
+    "motorcycle": RoadUserType("motorcycle", (1.1, 0.4, 0.7), (0.15, 0.15, 0.18, 1.0), (7.0, 8.33), 2.5, 3.0,
+                               0.8, (-0.6, 0.6)),
+    "bicycle": RoadUserType("bicycle", (0.9, 0.3, 0.85), (0.95, 0.75, 0.1, 1.0), (3.5, 5.5), 1.0, 2.0, 1.0,
+                            (-0.9, -0.8)),
+    "pedestrian": RoadUserType("pedestrian", (0.25, 0.3, 0.88), (0.2, 0.35, 0.75, 1.0), (1.1, 1.6)),
+}  # fmt: skip
+KIND_NAMES = tuple(ROAD_USER_TYPES)
+KIND_INDEX = {name: i for i, name in enumerate(KIND_NAMES)}
+
+
+@dataclass(frozen=True)
+class TrafficConfig:
+    """Behaviour constants shared by every road user."""
+
+    min_gap: float = 2.5  # [m] IDM s0: the study's safe distance to the vehicle ahead
+    stop_gap: float = 0.5  # [m] IDM s0 in front of a stop line
+    max_decel: float = 8.0  # [m/s^2] emergency braking limit
+    lateral_accel: float = 2.0  # [m/s^2] curve speed: v <= sqrt(lateral_accel / curvature)
+    accept_gap: float = 3.5  # [s] an entering vehicle goes if no priority vehicle reaches the merge sooner
+    merge_clearance: float = 5.0  # [m] ... and none is nearer than this (bumper to merge point)
+    corridor_range: float = 25.0  # [m] how far ahead the corridor check looks
+    corridor_margin: float = 0.3  # [m] lateral margin of the corridor
+    lane_change_rate: tuple[float, float] = (0.5, 0.2)  # [1/s] to the right, to the left neighbour
+    lane_change_length: float = 15.0  # [m] distance over which a lane change moves across
+    spawn_clear: float = 14.0  # [m] a source spawns only if nothing is this close to its start
+    crosswalk_margin: float = 1.0  # [m] vehicles stop this far before a crosswalk / a pedestrian's band
+    kerb: float = 0.9  # [m] where pedestrians wait, beyond the end of the crosswalk
+    pedestrian_wait: tuple[float, float] = (2.0, 10.0)  # [s] wait at the kerb before looking for a gap
+    decision_period: float = 0.2  # [s]
+    substep: float = 0.02  # [s] pose resolution (mocap written at this period)
+
+
+@dataclass
+class EgoState:
+    """The ego as traffic sees it: pose [m, m, rad], speed [m/s], size [m], and optionally its place in
+    the lane graph: `path` (lane ids from its current lane on, -1 padded) and `s` [m] along path[0]."""
+
+    x: float
+    y: float
+    yaw: float
+    speed: float
+    length: float
+    width: float
+    path: np.ndarray | None = None
+    s: float = 0.0
+
+
+def counts_to_kinds(counts: dict[str, int]) -> list[str]:
+    """Slot kinds from counts by kind, vehicles first in ROAD_USER_TYPES order, e.g. {"car": 2, ...}."""
+    unknown = set(counts) - set(ROAD_USER_TYPES)
+    if unknown:
+        raise ValueError(f"unknown road-user kinds {sorted(unknown)}; valid: {', '.join(ROAD_USER_TYPES)}")
+    return [name for name in ROAD_USER_TYPES for _ in range(int(counts.get(name, 0)))]
+
+
+def slots(kinds: Sequence[str]) -> list[TrafficSlot]:
+    """The world.TrafficSlot of each kind (for `world.build(traffic=...)`)."""
+    return [ROAD_USER_TYPES[k].slot for k in kinds]
+
+
+def _smoothstep(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """3x^2 - 2x^3 on [0, 1] and its derivative."""
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x), 6.0 * x * (1.0 - x)
+
+
+def _yaw_quat(yaw: np.ndarray) -> np.ndarray:
+    q = np.zeros(yaw.shape + (4,))
+    q[..., 0], q[..., 3] = np.cos(0.5 * yaw), np.sin(0.5 * yaw)
+    return q
+
+
+def overlapping_pairs(poses: np.ndarray, half_sizes: np.ndarray, margin: float = 0.0) -> np.ndarray:
+    """Pairs (K,2) of oriented rectangles (x, y, yaw) (N,3) [m, m, rad] with half sizes (N,>=2) [m] that
+    overlap (separating-axis test; each rectangle grown by `margin` [m])."""
+    n = len(poses)
+    if n < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    i, j = np.triu_indices(n, 1)
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    axes = np.stack([np.stack([c, s], -1), np.stack([-s, c], -1)], 1)  # (N, 2 axes, 2)
+    half = half_sizes[:, :2] + margin
+    d = poses[j, :2] - poses[i, :2]
+    separated = np.zeros(len(i), dtype=bool)
+    for owner in (i, j):
+        for k in range(2):
+            axis = axes[owner, k]
+            ri = np.abs(np.einsum("pa,pba->pb", axis, axes[i])) * half[i]
+            rj = np.abs(np.einsum("pa,pba->pb", axis, axes[j])) * half[j]
+            separated |= np.abs(np.einsum("pa,pa->p", d, axis)) > ri.sum(1) + rj.sum(1)
+    return np.stack([i[~separated], j[~separated]], 1)
+
+
+@dataclass
+class _Plan:
+    """Poses of every slot at the substeps of one decision period."""
+
+    pos: np.ndarray  # (S, N, 3) [m]
+    quat: np.ndarray  # (S, N, 4)
+    yaw: np.ndarray  # (S, N) [rad]
+    speed: np.ndarray  # (S, N) [m/s]
+
+
+class Traffic:
+    """All road users of one world. `kinds` gives each slot's kind (in the order of the model's
+    `traffic_{i}` bodies); the count of active users per kind is the slot count (minus users that just
+    left the map and wait to respawn)."""
+
+    def __init__(self, road_map: RoadMap | TrafficMap, kinds: Sequence[str],
+                 config: TrafficConfig | None = None):
+        self.config = cfg = config or TrafficConfig()
+        self.map = road_map if isinstance(road_map, TrafficMap) else TrafficMap(road_map, cfg.lateral_accel)
+        self.kinds = tuple(kinds)
+        unknown = set(self.kinds) - set(ROAD_USER_TYPES)
+        if unknown:
+            raise ValueError(f"unknown road-user kinds {sorted(unknown)}; valid: {', '.join(ROAD_USER_TYPES)}")
+        types = [ROAD_USER_TYPES[k] for k in self.kinds]
+        self.n = len(types)
+        self.kind_id = np.array([KIND_INDEX[k] for k in self.kinds], dtype=np.int64)
+        self.half_size = np.array([t.half_size for t in types]).reshape(-1, 3)
+        is_vehicle = np.array([t.is_vehicle for t in types], dtype=bool)
+        self.vehicle_slots = np.flatnonzero(is_vehicle)
+        self.pedestrian_slots = np.flatnonzero(~is_vehicle)
+        self.nv, self.np_ = len(self.vehicle_slots), len(self.pedestrian_slots)
+        vt = [types[i] for i in self.vehicle_slots]
+        self._vtypes = vt
+        self.length = 2 * self.half_size[self.vehicle_slots, 0]  # [m]
+        self.width = 2 * self.half_size[self.vehicle_slots, 1]  # [m]
+        self.a_max = np.array([t.accel for t in vt])
+        self.b_comf = np.array([t.decel for t in vt])
+        self.headway = np.array([t.headway for t in vt])
+        self._speed_range = np.array([t.speed for t in vt]).reshape(-1, 2)
+        self._lateral_range = np.array([t.lateral for t in vt]).reshape(-1, 2)
+        self._walk_range = np.array([types[i].speed for i in self.pedestrian_slots]).reshape(-1, 2)
+        if self.np_ and self.map.n_crosswalks == 0:
+            raise ValueError("pedestrians need a road map with crosswalks")
+        if self.np_ > N_TRACKS * max(self.map.n_crosswalks, 1):
+            raise ValueError(f"at most {N_TRACKS} pedestrians per crosswalk "
+                             f"({N_TRACKS * self.map.n_crosswalks} on this map), got {self.np_}")
+        self.ped_cw = np.arange(self.np_) % max(self.map.n_crosswalks, 1)
+        tracks = (np.arange(self.np_) // max(self.map.n_crosswalks, 1)) % N_TRACKS
+        if self.map.n_crosswalks:
+            self.ped_offset = (tracks - 1.0) * self.map.cw_width[self.ped_cw] / N_TRACKS  # [m] along the road
+        else:
+            self.ped_offset = np.zeros(0)
+        m = self.map
+        if self.np_:
+            cw = self.ped_cw
+            self._ped_end = m.cw_half_length[cw] + cfg.kerb  # [m] kerb position along the crosswalk
+            self._ped_centre, self._ped_along = m.cw_centre[cw], m.cw_along[cw]
+            self._ped_side = self.ped_offset[:, None] * m.cw_across[cw]
+            self._ped_heading = m.cw_heading[cw]
+        self.n_plan = max(1, int(round(cfg.decision_period / cfg.substep)))
+        self._t_plan = cfg.substep * np.arange(1, self.n_plan + 1)  # [s]
+        self._hidden = np.column_stack([np.zeros(self.n), np.zeros(self.n), HIDDEN_Z - 5.0 * np.arange(self.n)])
+        self.mocap_ids: np.ndarray | None = None
+        self.cpu_time = 0.0  # [s] wall time spent in `advance` (for benchmarks)
+        self.stats = {"spawned": 0, "despawned": 0, "lane_changes": 0}
+        self.ego: EgoState | None = None
+        self._obstacle_cache = None
+        self.rng = np.random.default_rng(0)
+        self._reset_state()
+
+    # --- binding and state ----------------------------------------------------------------------------
+    def bind(self, model: mujoco.MjModel, prefix: str = "traffic_") -> None:
+        """Look up the mocap ids of the slots' bodies (`traffic_{i}`) once."""
+        ids = []
+        for i in range(self.n):
+            body = model.body(f"{prefix}{i}")
+            if model.body_mocapid[body.id] < 0:
+                raise ValueError(f"body {prefix}{i} is not a mocap body")
+            ids.append(int(model.body_mocapid[body.id]))
+        self.mocap_ids = np.array(ids, dtype=np.int64)
+        self._contiguous = bool(np.array_equal(self.mocap_ids, np.arange(ids[0], ids[0] + self.n))) if ids else True
+
+    def _reset_state(self) -> None:
+        nv, npd = self.nv, self.np_
+        self.active = np.zeros(nv, dtype=bool)
+        self.path = np.full((nv, PATH), -1, dtype=np.int64)
+        self.s = np.zeros(nv)  # [m] along path[:, 0]
+        self.v = np.zeros(nv)  # [m/s]
+        self.v0 = np.zeros(nv)  # [m/s] desired speed
+        self.d_pref = np.zeros(nv)  # [m] preferred lateral offset
+        self.lc_shift = np.zeros(nv)  # [m] lateral offset left to remove by the current lane change
+        self.lc_dist = np.full(nv, 1e9)  # [m] distance driven since the lane change began
+        self.accel = np.zeros(nv)  # [m/s^2] of the current decision period
+        self.ped_u = np.zeros(npd)  # [m] position along the crosswalk
+        self.ped_dir = np.ones(npd)  # +1 / -1: walking direction along the crosswalk
+        self.ped_walking = np.zeros(npd, dtype=bool)
+        self.ped_wait = np.zeros(npd)  # [s] left to wait at the kerb before looking for a gap
+        self.ped_speed = np.zeros(npd)  # [m/s]
+        self.time = 0.0  # [s]
+        self._plan: _Plan | None = None
+        self._k = 0  # index of the current substep in the plan
+        self._accumulated = 0.0
+        self._current_pos = self._hidden.copy()
+        self._current_yaw = np.zeros(self.n)
+        self._current_speed = np.zeros(self.n)
+
+    def _path_lengths(self, path: np.ndarray) -> np.ndarray:
+        """Lengths (.., PATH) [m] of the lanes in `path`; inf for -1 (beyond a dead end)."""
+        return np.where(path >= 0, self.map.length[np.maximum(path, 0)], np.inf)
+
+    def _choose_successor(self, lane: np.ndarray) -> np.ndarray:
+        """A uniformly random successor of each lane (-1 for a dead end or -1)."""
+        m = self.map
+        valid = lane >= 0
+        lane0 = np.maximum(lane, 0)
+        count = np.where(valid, m.n_successors[lane0], 0)
+        pick = np.floor(self.rng.random(len(lane)) * np.maximum(count, 1)).astype(np.int64)
+        return np.where(count > 0, m.successors[lane0, np.minimum(pick, m.successors.shape[1] - 1)], -1)
+
+    def _fill_path(self, rows: np.ndarray, start: int = 1) -> None:
+        """Random successors for path[rows, start:]."""
+        for k in range(start, PATH):  # loop over path depth, not over road users
+            self.path[rows, k] = self._choose_successor(self.path[rows, k - 1])
+
+    # --- episodes --------------------------------------------------------------------------------------
+    def reset(self, rng: np.random.Generator, ego: EgoState | None = None, keep_clear: float = 12.0,
+              warmup: float = 0.0, density: float = 1.0) -> None:
+        """New episode: place a random `density` share of the vehicles on the map's spawn points (none within
+        `keep_clear` [m] of the ego), pedestrians at kerbs, then run `warmup` [s] of traffic."""
+        self.rng = rng
+        self._reset_state()
+        self.ego = ego
+        m = self.map
+        free = np.ones(len(m.spawn_lane), dtype=bool)
+        if ego is not None:
+            free &= np.hypot(m.spawn_xy[:, 0] - ego.x, m.spawn_xy[:, 1] - ego.y) >= keep_clear
+        points = np.flatnonzero(free)
+        n_place = min(int(round(density * self.nv)), len(points))
+        chosen = rng.permutation(points)[:n_place]
+        rows = rng.permutation(self.nv)[:n_place]
+        self._activate(rows, m.spawn_lane[chosen], m.spawn_s[chosen], speed_share=rng.uniform(0.3, 1.0, n_place))
+        if self.np_:
+            self.ped_dir = rng.choice([-1.0, 1.0], self.np_)
+            self.ped_u = -self.ped_dir * (m.cw_half_length[self.ped_cw] + self.config.kerb)
+            self.ped_wait = rng.uniform(0.0, self.config.pedestrian_wait[1], self.np_)
+            self.ped_speed = rng.uniform(self._walk_range[:, 0], self._walk_range[:, 1])
+        self._current_pos, self._current_yaw, self._current_speed = self._poses_now()
+        steps = int(round(warmup / self.config.decision_period))
+        for _ in range(steps):
+            self._decide()
+            self._commit()
+        self.time = 0.0
+        self._plan = None
+        self._k = 0
+
+    def _activate(self, rows: np.ndarray, lane: np.ndarray, s: np.ndarray, speed_share=0.8) -> None:
+        """Put vehicles `rows` at (lane, s) with random desired speed and lateral offset."""
+        if not len(rows):
+            return
+        rng = self.rng
+        self.active[rows] = True
+        self.path[rows] = -1
+        self.path[rows, 0] = lane
+        self._fill_path(rows)
+        self.s[rows] = s
+        self.v0[rows] = rng.uniform(self._speed_range[rows, 0], self._speed_range[rows, 1])
+        cap = np.minimum(self.v0[rows], self.map.speed_limit[lane])
+        self.v[rows] = cap * speed_share
+        self.d_pref[rows] = rng.uniform(self._lateral_range[rows, 0], self._lateral_range[rows, 1])
+        self.lc_shift[rows] = 0.0
+        self.lc_dist[rows] = 1e9
+        self.accel[rows] = 0.0
+
+    # --- stepping --------------------------------------------------------------------------------------
+    def advance(self, dt: float, ego: Callable[[], EgoState | None] | None = None,
+                data: mujoco.MjData | None = None) -> None:
+        """Move every road user by `dt` [s] (a whole number of substeps, usually one) and write the new
+        poses into `data`'s mocap arrays if given. `ego` is called at each decision for the ego's state."""
+        start = time.perf_counter()
+        self._accumulated += dt
+        n = int(self._accumulated / self.config.substep + 1e-6)
+        self._accumulated -= n * self.config.substep
+        for _ in range(n):  # usually once; loops over substeps, never over road users
+            if self._plan is None or self._k >= self.n_plan:
+                if self._plan is not None:
+                    self._commit()
+                if ego is not None:
+                    self.ego = ego()
+                self._decide()
+                self._k = 0
+            self._k += 1
+            self.time += self.config.substep
+        if n:
+            k = self._k - 1
+            self._current_pos = self._plan.pos[k]
+            self._current_yaw = self._plan.yaw[k]
+            self._current_speed = self._plan.speed[k]
+        if data is not None:
+            self.write(data)
+        self.cpu_time += time.perf_counter() - start
+
+    def write(self, data: mujoco.MjData) -> None:
+        """Write the current poses into data.mocap_pos / mocap_quat."""
+        if self.mocap_ids is None:
+            raise RuntimeError("call Traffic.bind(model) before writing poses")
+        if self.n == 0:
+            return
+        quat = self._plan.quat[self._k - 1] if self._plan is not None and self._k else _yaw_quat(self._current_yaw)
+        if self._contiguous:
+            a = self.mocap_ids[0]
+            data.mocap_pos[a:a + self.n] = self._current_pos
+            data.mocap_quat[a:a + self.n] = quat
+        else:
+            data.mocap_pos[self.mocap_ids] = self._current_pos
+            data.mocap_quat[self.mocap_ids] = quat
+
+    def _commit(self) -> None:
+        """Make the end of the current plan the new state."""
+        t_end = self._t_plan[-1]
+        v, a = self.v, self.accel
+        stop = (a < 0) & (v + a * t_end < 0)
+        ds = np.where(stop, v * v / np.maximum(-2 * a, 1e-9), v * t_end + 0.5 * a * t_end**2)
+        ds = np.where(self.active, ds, 0.0)
+        self.s += ds
+        self.lc_dist += ds
+        self.v = np.where(self.active, np.maximum(v + a * t_end, 0.0), 0.0)
+        if self.np_:
+            self._commit_pedestrians(t_end)
+        self._current_pos = self._plan.pos[-1]
+        self._current_yaw = self._plan.yaw[-1]
+        self._current_speed = self._plan.speed[-1]
+        self._plan = None
+
+    def _commit_pedestrians(self, t_end: float) -> None:
+        m, cfg = self.map, self.config
+        end = m.cw_half_length[self.ped_cw] + cfg.kerb
+        u = np.where(self.ped_walking, self.ped_u + self.ped_dir * self.ped_speed * t_end, self.ped_u)
+        arrived = self.ped_walking & (self.ped_dir * u >= end)
+        self.ped_u = np.clip(u, -end, end)
+        self.ped_walking &= ~arrived
+        self.ped_dir = np.where(arrived, -self.ped_dir, self.ped_dir)
+        lo, hi = cfg.pedestrian_wait
+        self.ped_wait = np.where(arrived, self.rng.uniform(lo, hi, self.np_), self.ped_wait - t_end)
+
+    # --- decisions -------------------------------------------------------------------------------------
+    def _decide(self) -> None:
+        """New accelerations, lane changes, spawns and pedestrian starts; then the plan of poses."""
+        self._obstacle_cache = None
+        self._advance_lanes()
+        if self._spawn():
+            self._refresh_vehicle_poses()
+        self._lane_changes()
+        ctx = self._context()
+        if self.np_:
+            self._pedestrian_starts(ctx)
+        self.accel = np.where(self.active, self._accelerations(self._follower_table(ctx), ctx), 0.0)
+        self._plan = self._make_plan()
+
+    def _advance_lanes(self) -> None:
+        """Vehicles past the end of their lane move on along their path (or leave the map at dead ends)."""
+        while True:
+            over = self.active & (self.s >= self.map.length[np.maximum(self.path[:, 0], 0)])
+            if not over.any():
+                return
+            rows = np.flatnonzero(over)
+            self.s[rows] -= self.map.length[self.path[rows, 0]]
+            self.path[rows, :-1] = self.path[rows, 1:]
+            self.path[rows, -1] = self._choose_successor(self.path[rows, -2])
+            gone = rows[self.path[rows, 0] < 0]
+            if len(gone):
+                self.active[gone] = False
+                self.v[gone] = 0.0
+                self.stats["despawned"] += len(gone)
+
+    def _context(self) -> dict:
+        """Lane-graph rows of the vehicles and the ego (last row) shared by one decision: current lane,
+        s [m], speed [m/s], length [m], path (A, PATH) and the distance to the start of each path lane."""
+        ego = self.ego
+        path = np.full((self.nv + 1, PATH), -1, dtype=np.int64)
+        path[:-1] = np.where(self.active[:, None], self.path, -1)
+        s = np.append(self.s, 0.0)
+        v = np.append(self.v, 0.0)
+        length = np.append(self.length, 0.0)
+        if ego is not None:
+            v[-1], length[-1] = max(ego.speed, 0.0), ego.length
+            if ego.path is not None and len(ego.path) and ego.path[0] >= 0:
+                k = min(len(ego.path), PATH)
+                path[-1, :k] = ego.path[:k]
+                s[-1] = ego.s
+        plen = self._path_lengths(path)
+        start = np.zeros((len(path), PATH))
+        np.cumsum(plen[:, :-1], axis=1, out=start[:, 1:])
+        return {"lane": path[:, 0], "s": s, "v": v, "length": length, "path": path, "start": start}
+
+    def _spawn(self) -> bool:
+        """Inactive vehicles re-enter at a random clear source (at most one per source per decision)."""
+        m, cfg = self.map, self.config
+        idle = np.flatnonzero(~self.active)
+        if not len(idle) or not len(m.sources):
+            return False
+        lane = np.where(self.active, self.path[:, 0], -1)
+        near_start = (lane[:, None] == m.sources[None]) & ((self.s - self.length / 2)[:, None] < cfg.spawn_clear)
+        clear = ~near_start.any(axis=0)
+        if self.ego is not None:
+            clear &= np.hypot(m.source_xy[:, 0] - self.ego.x, m.source_xy[:, 1] - self.ego.y) >= cfg.spawn_clear
+        pick = self.rng.integers(len(m.sources), size=len(idle))
+        ok = clear[pick]
+        if not ok.any():
+            return False
+        rows, src = idle[ok], pick[ok]
+        _, first = np.unique(src, return_index=True)
+        rows, src = rows[first], src[first]
+        self._activate(rows, m.sources[src], self.length[rows] / 2 + 0.5)
+        self.stats["spawned"] += len(rows)
+        return True
+
+    def _lane_changes(self) -> None:
+        """At most one lane change per decision: a random candidate whose target lane has room."""
+        m, cfg = self.map, self.config
+        lane0 = np.maximum(self.path[:, 0], 0)
+        targets = np.stack([m.right[lane0], m.left[lane0]], 1)  # (NV, 2)
+        rate = np.array(cfg.lane_change_rate) * cfg.decision_period
+        draw = self.rng.random((self.nv, 2)) < rate[None]
+        ok = draw & (targets >= 0) & (self.active & (self.lc_dist >= cfg.lane_change_length)
+                                      & (self.s > 1.0))[:, None]
+        if not ok.any():
+            return
+        cand = np.argwhere(ok)
+        row, side = cand[self.rng.integers(len(cand))]
+        target = int(targets[row, side])
+        s_new = self.s[row] * m.length[target] / m.length[lane0[row]]
+        # The move must be over before any junction lane (an exit): the lane after the target goes on.
+        after = int(self._choose_successor(np.array([target]))[0])
+        if after < 0 or m.in_junction[after] or (m.length[target] - s_new + m.length[after]
+                                                  < cfg.lane_change_length):
+            return
+        ctx = self._context()
+        s, v, length, path, start = ctx["s"], ctx["v"], ctx["length"], ctx["path"], ctx["start"]
+        # Every other vehicle's coordinate along the target lane (via its own path), if it passes there,
+        # or beyond its end along the lane that follows it (on it or coming to it from another lane).
+        hit, hit_after = path == target, path == after
+        coord = np.where(hit_after.any(1), m.length[target] + s - np.where(hit_after, start, 0).sum(1), np.nan)
+        coord = np.where(hit.any(1), s - np.where(hit, start, 0).sum(1), coord)
+        coord[row] = np.nan
+        gap_ahead = coord - s_new - (length + self.length[row]) / 2
+        gap_behind = s_new - coord - (length + self.length[row]) / 2
+        ahead, behind = coord >= s_new, coord < s_new
+        if np.any(ahead & (gap_ahead < cfg.min_gap + self.v[row] * 0.8)):
+            return
+        if np.any(behind & (gap_behind < cfg.min_gap + v * 1.2 + 2.0)):
+            return
+        if self.ego is not None and np.hypot(*(self._current_pos[self.vehicle_slots[row], :2]
+                                               - (self.ego.x, self.ego.y))) < 12.0:
+            return
+        shift = m.width[lane0[row]] * (1.0 if side == 0 else -1.0)  # the old centre seen from the new lane
+        sm, _ = _smoothstep(self.lc_dist[row] / cfg.lane_change_length)
+        d_now = self.d_pref[row] + self.lc_shift[row] * (1.0 - sm)
+        self.path[row, 0] = target
+        self.path[row, 1] = after
+        self._fill_path(np.array([row]), start=2)
+        self.s[row] = s_new
+        self.lc_shift[row] = d_now + shift - self.d_pref[row]
+        self.lc_dist[row] = 0.0
+        self.stats["lane_changes"] += 1
+
+    def _pedestrian_starts(self, ctx: dict) -> None:
+        """Waiting pedestrians whose wait is over cross when no vehicle could fail to stop before them."""
+        m = self.map
+        ready = ~self.ped_walking & (self.ped_wait <= 0.0)
+        if not ready.any():
+            return
+        unsafe = self._threatened_crosswalks(ctx)
+        if self.ego is not None:
+            dist = np.hypot(m.cw_centre[:, 0] - self.ego.x, m.cw_centre[:, 1] - self.ego.y)
+            unsafe |= dist < 7.0 + 3.0 * max(self.ego.speed, 0.0)
+        self.ped_walking |= ready & ~unsafe[self.ped_cw]
+
+    def _threatened_crosswalks(self, ctx: dict) -> np.ndarray:
+        """Crosswalks (C,) that a vehicle on the lane graph is on, or too close to stop comfortably before."""
+        m = self.map
+        out = np.zeros(m.n_crosswalks, dtype=bool)
+        if not len(m.cross_lane):
+            return out
+        s, v, length = ctx["s"], ctx["v"], ctx["length"]
+        hit = ctx["path"][:, None, :] == m.cross_lane[None, :, None]  # (A, K, PATH)
+        base = np.where(hit, ctx["start"][:, None, :], np.inf).min(axis=2)  # (A, K)
+        front = base + m.cross_s[None, :, 0] - (s + length / 2)[:, None]  # bumper to the crossing [m]
+        rear_past = base + m.cross_s[None, :, 1] - (s - length / 2)[:, None]  # > 0: rear not yet past it
+        b = np.append(self.b_comf, 3.0)
+        stopping = v * v / (2 * b) + v + 1.0
+        threat = (rear_past > 0) & (front < stopping[:, None])  # inf base: never
+        np.logical_or.at(out, m.cross_cw, threat.any(axis=0))
+        return out
+
+    # --- accelerations -----------------------------------------------------------------------------------
+    def _follower_table(self, ctx: dict) -> dict:
+        """The vehicles as followers for `_accelerations`."""
+        nv = self.nv
+        vs = self.vehicle_slots
+        return {"rows": np.arange(nv), "path": ctx["path"][:nv], "start": ctx["start"][:nv], "s": self.s,
+                "v": self.v, "v0": self.v0, "length": self.length, "width": self.width, "a": self.a_max,
+                "b": self.b_comf, "T": self.headway, "xy": self._current_pos[vs, :2],
+                "yaw": self._current_yaw[vs], "accept_gap": self.config.accept_gap}
+
+    def _accelerations(self, f: dict, ctx: dict) -> np.ndarray:
+        """IDM accelerations [m/s^2] of followers `f` (dict of arrays, see `_follower_table`)."""
+        m, cfg = self.map, self.config
+        path, start, s, v = f["path"], f["start"], f["s"], f["v"]
+        rows, length = f["rows"], f["length"]
+        front = s + length / 2
+        gaps, leads, s0s = [], [], []
+
+        # 1. Leaders along the planned path (vehicles and the ego).
+        lane_a = ctx["lane"]
+        match = (path[:, None, :] == lane_a[None, :, None]) & (lane_a >= 0)[None, :, None]  # (F, A, PATH)
+        pos = np.where(match, start[:, None, :], np.inf).min(axis=2) + ctx["s"][None]  # (F, A)
+        a_idx = np.arange(len(lane_a))
+        ahead = (pos > s[:, None]) | ((pos == s[:, None]) & (a_idx[None] > rows[:, None]))
+        ahead &= a_idx[None] != rows[:, None]
+        gaps.append(np.where(ahead, pos - front[:, None] - ctx["length"][None] / 2, np.inf))
+        leads.append(np.broadcast_to(ctx["v"][None], gaps[-1].shape))
+        s0s.append(cfg.min_gap)
+
+        # 2. Anything in the corridor ahead (curvature-corrected): vehicles, the ego, pedestrians.
+        xy_o, yaw_o, v_o, hl_o, hw_o, idx_o = self._obstacles()
+        lane0 = np.maximum(path[:, 0], 0)
+        vcurve, kappa = m.curve_speed(lane0, s)
+        c, sn = np.cos(f["yaw"])[:, None], np.sin(f["yaw"])[:, None]
+        rx = xy_o[None, :, 0] - f["xy"][:, None, 0]
+        ry = xy_o[None, :, 1] - f["xy"][:, None, 1]
+        dx = c * rx + sn * ry
+        dy = -sn * rx + c * ry - 0.5 * kappa[:, None] * dx * dx
+        dyaw = yaw_o[None] - f["yaw"][:, None]
+        cd, sd = np.abs(np.cos(dyaw)), np.abs(np.sin(dyaw))
+        ey = sd * hl_o[None] + cd * hw_o[None]
+        inside = (dx > 0) & (dx < cfg.corridor_range) & (idx_o[None] != rows[:, None])
+        inside &= np.abs(dy) < (f["width"] / 2 + cfg.corridor_margin)[:, None] + ey
+        gaps.append(np.where(inside, dx - (length / 2)[:, None] - cd * hl_o[None] - sd * hw_o[None], np.inf))
+        leads.append(v_o[None] * np.cos(dyaw))
+        s0s.append(cfg.min_gap)
+
+        # 3. Crosswalk stop lines where a pedestrian walks in the lane's band, or where the queue ahead
+        #    leaves no room beyond the crosswalk (keep it clear).
+        if len(m.cross_lane):
+            hit = path[:, None, :] == m.cross_lane[None, :, None]
+            base = np.where(hit, start[:, None, :], np.inf).min(axis=2)  # (F, K)
+            stop = base + (m.cross_s[:, 0] - cfg.crosswalk_margin)[None] - front[:, None]
+            beyond = base + (m.cross_s[:, 1] + cfg.crosswalk_margin)[None] - front[:, None]
+            path_gap = gaps[0].min(axis=1)
+            slow_leader = np.isfinite(path_gap) & (ctx["v"][np.argmin(gaps[0], axis=1)] < 3.0)
+            room = np.where(np.isfinite(beyond), path_gap[:, None] - np.where(np.isfinite(beyond), beyond, 0), np.inf)
+            no_room = slow_leader[:, None] & (room < (length + cfg.min_gap)[:, None])
+            blocked = no_room | (self._occupied_crossings()[None] if self.np_ else False)
+            gaps.append(np.where(blocked & (stop > -0.5), stop, np.inf))  # at / past the line: go on
+            leads.append(np.zeros_like(stop))
+            s0s.append(cfg.stop_gap)
+
+        # 4. Merge stop lines while a priority vehicle (or the ego) would reach the merge point too soon.
+        if len(m.yield_lane):
+            conflict = self._merge_conflicts(ctx, f["accept_gap"])  # (Y,)
+            if conflict.any():
+                lanes = np.where(conflict, m.yield_lane, -2)
+                hit = path[:, None, :] == lanes[None, :, None]  # (F, Y, PATH)
+                base = np.where(hit, start[:, None, :], np.inf).min(axis=2)
+                stop = base + m.yield_stop[None] - front[:, None]
+                gaps.append(np.where(stop > -0.3, stop, np.inf))
+                leads.append(np.zeros_like(stop))
+                s0s.append(cfg.stop_gap)
+
+        gap = np.concatenate(gaps, axis=1)
+        lead = np.concatenate(leads, axis=1)
+        s0 = np.concatenate([np.full(g.shape[1], x) for g, x in zip(gaps, s0s, strict=True)])
+        dv = v[:, None] - lead
+        s_star = s0[None] + np.maximum(0.0, (v * f["T"])[:, None] + v[:, None] * dv
+                                       / (2.0 * np.sqrt(f["a"] * f["b"]))[:, None])
+        interaction = np.where(np.isfinite(gap), (s_star / np.maximum(gap, 0.05)) ** 2, 0.0).max(axis=1)
+
+        # Desired speed: own v0, the lane's speed limit, the curves ahead on this lane and the next.
+        nxt = path[:, 1]
+        to_end = m.length[lane0] - s
+        vnext = np.where(nxt >= 0, np.sqrt(m.entry_speed[np.maximum(nxt, 0)] ** 2
+                                           + 2 * m.anticipation * np.maximum(to_end, 0)), np.inf)
+        v0 = np.minimum(np.minimum(f["v0"], m.speed_limit[lane0]), np.minimum(vcurve, vnext))
+        acc = f["a"] * (1.0 - (v / np.maximum(v0, 0.1)) ** 4 - interaction)
+        return np.clip(acc, -cfg.max_decel, f["a"])
+
+    def _obstacles(self):
+        """Everything the corridor check sees: centre xy (O,2), yaw, speed, half length, half width, and the
+        follower row it is (vehicle row, nv for the ego, -1 for pedestrians); inactive vehicles left out."""
+        if self._obstacle_cache is not None:
+            return self._obstacle_cache
+        ego = self.ego
+        rows = np.concatenate([self.vehicle_slots[self.active], self.pedestrian_slots])
+        xy = self._current_pos[rows, :2]
+        yaw = self._current_yaw[rows]
+        speed = self._current_speed[rows]
+        hl, hw = self.half_size[rows, 0], self.half_size[rows, 1]
+        idx = np.concatenate([np.flatnonzero(self.active), np.full(self.np_, -1)])
+        if ego is not None:
+            xy = np.vstack([xy, [[ego.x, ego.y]]])
+            yaw = np.append(yaw, ego.yaw)
+            speed = np.append(speed, max(ego.speed, 0.0))
+            hl, hw = np.append(hl, ego.length / 2), np.append(hw, ego.width / 2)
+            idx = np.append(idx, self.nv)
+        self._obstacle_cache = (xy, yaw, speed, hl, hw, idx)
+        return self._obstacle_cache
+
+    def _occupied_crossings(self) -> np.ndarray:
+        """Crossings (K,) with a pedestrian walking in the lane's band (+ margin) or towards it."""
+        m, cfg = self.map, self.config
+        on = self.ped_walking[None] & (self.ped_cw[None] == m.cross_cw[:, None])  # (K, P)
+        u, direction = self.ped_u[None], self.ped_dir[None]
+        margin = cfg.crosswalk_margin + 0.3
+        lo, hi = m.cross_u[:, :1] - margin, m.cross_u[:, 1:] + margin
+        not_past = np.where(direction > 0, u < hi, u > lo)
+        return (on & not_past).any(axis=1)
+
+    def _merge_conflicts(self, ctx: dict, accept_gap: float) -> np.ndarray:
+        """(Y,): whether a priority agent (vehicle or ego) reaches merge y's point within `accept_gap` [s] or
+        is nearer than merge_clearance, or still occupies the start of the merged lane."""
+        m, cfg = self.map, self.config
+        path, start, s, v, length = ctx["path"], ctx["start"], ctx["s"], ctx["v"], ctx["length"]
+        merge = m.yield_merge
+        # Agents approaching the merge point, not through this yielding lane (not queued behind it).
+        hit = path[:, 1:, None] == merge[None, None]  # (A, PATH-1, Y)
+        via = (path[:, :, None] == m.yield_lane[None, None]).any(axis=1)  # (A, Y)
+        dist = np.where(hit, start[:, 1:, None], np.inf).min(axis=1) - (s + length / 2)[:, None]  # (A, Y)
+        dist = np.where(via, np.inf, dist)
+        soon = dist - cfg.merge_clearance < v[:, None] * accept_gap
+        # Agents already on the merged lane whose rear is still near its start.
+        on_start = (ctx["lane"][:, None] == merge[None]) & ((s - length / 2)[:, None] < cfg.merge_clearance + 3.0)
+        return (soon | on_start).any(axis=0)
+
+    # --- poses -------------------------------------------------------------------------------------------
+    def _make_plan(self) -> _Plan:
+        t = self._t_plan[:, None]  # (S, 1)
+        v, a = self.v[None], self.accel[None]
+        stopped = (a < 0) & (v + a * t < 0)
+        ds = np.where(stopped, v * v / np.maximum(-2 * a, 1e-9), v * t + 0.5 * a * t * t)  # (S, NV)
+        out_pos = np.empty((len(t), self.n, 3))
+        out_yaw = np.empty((len(t), self.n))
+        out_speed = np.zeros((len(t), self.n))
+        vs = self.vehicle_slots
+        out_pos[:, vs], out_yaw[:, vs] = self._vehicle_poses(ds)
+        out_speed[:, vs] = np.maximum(v + a * t, 0.0) * self.active[None]
+        if self.np_:
+            ps = self.pedestrian_slots
+            out_pos[:, ps], out_yaw[:, ps], out_speed[:, ps] = self._pedestrian_poses(t)
+        return _Plan(out_pos, _yaw_quat(out_yaw), out_yaw, out_speed)
+
+    def _vehicle_poses(self, ds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Poses (S, NV, 3), yaw (S, NV) of the vehicles after moving ds (S, NV) [m] along their paths."""
+        m, nv = self.map, self.nv
+        plen = self._path_lengths(self.path)
+        p = self.s[None] + ds
+        k = (p[..., None] >= np.cumsum(plen[:, :-1], axis=1)[None]).sum(-1)  # (S, NV) index into the path
+        k = np.minimum(k, np.maximum((self.path >= 0).sum(1) - 1, 0)[None])  # stay on a dead end's last lane
+        flat = np.arange(nv) * PATH + k
+        lane = np.maximum(self.path.ravel()[flat], 0)
+        before = np.concatenate([np.zeros((nv, 1)), np.cumsum(plen[:, :-1], axis=1)], axis=1).ravel()[flat]
+        x, y, h = m.lookup(lane, p - before)
+        sm, dsm = _smoothstep((self.lc_dist[None] + ds) / self.config.lane_change_length)
+        d = self.d_pref[None] + self.lc_shift[None] * (1.0 - sm)
+        yaw = h + np.arctan(-self.lc_shift[None] * dsm / self.config.lane_change_length)
+        sin, cos = np.sin(h), np.cos(h)
+        pos = np.stack([x - sin * d, y + cos * d, np.zeros_like(x)], axis=-1)
+        if not self.active.all():
+            hidden = ~self.active
+            pos[:, hidden] = self._hidden[self.vehicle_slots[hidden]][None]
+            yaw[:, hidden] = 0.0
+        return pos, yaw
+
+    def _pedestrian_poses(self, t: np.ndarray):
+        """Poses (S, P, 3), yaw (S, P) and speed (S, P) of the pedestrians at times t (S, 1) [s] ahead."""
+        end = self._ped_end[None]
+        walking = self.ped_walking[None]
+        u = np.clip(self.ped_u[None] + (self.ped_dir * self.ped_speed * self.ped_walking)[None] * t, -end, end)
+        xy = self._ped_centre[None] + u[..., None] * self._ped_along[None] + self._ped_side[None]
+        pos = np.concatenate([xy, np.zeros(xy.shape[:-1] + (1,))], axis=-1)
+        yaw = np.broadcast_to(self._ped_heading + np.where(self.ped_dir > 0, 0.0, np.pi), u.shape)
+        speed = np.where(walking & (np.abs(u) < end), self.ped_speed[None], 0.0)
+        return pos, yaw, speed
+
+    def _refresh_vehicle_poses(self) -> None:
+        """Current vehicle poses from the state (after spawns)."""
+        pos, yaw = self._vehicle_poses(np.zeros((1, self.nv)))
+        self._current_pos = self._current_pos.copy()
+        self._current_yaw = self._current_yaw.copy()
+        self._current_pos[self.vehicle_slots] = pos[0]
+        self._current_yaw[self.vehicle_slots] = yaw[0]
+
+    def _poses_now(self):
+        """Poses of every slot at the current state (no plan)."""
+        pos = self._hidden.copy()
+        yaw = np.zeros(self.n)
+        speed = np.zeros(self.n)
+        vpos, vyaw = self._vehicle_poses(np.zeros((1, self.nv)))
+        pos[self.vehicle_slots], yaw[self.vehicle_slots] = vpos[0], vyaw[0]
+        speed[self.vehicle_slots] = np.where(self.active, self.v, 0.0)
+        if self.np_:
+            ppos, pyaw, pspeed = self._pedestrian_poses(np.zeros((1, 1)))
+            pos[self.pedestrian_slots], yaw[self.pedestrian_slots] = ppos[0], pyaw[0]
+            speed[self.pedestrian_slots] = pspeed[0]
+        return pos, yaw, speed
+
+    # --- queries -----------------------------------------------------------------------------------------
+    @property
+    def present(self) -> np.ndarray:
+        """(N,) slots in the world now (active vehicles and all pedestrians)."""
+        out = np.ones(self.n, dtype=bool)
+        out[self.vehicle_slots] = self.active
+        return out
+
+    def poses(self) -> np.ndarray:
+        """(N,3) [m, m, rad] x, y, yaw of every slot now (inactive slots are below the ground)."""
+        return np.column_stack([self._current_pos[:, :2], self._current_yaw])
+
+    def velocities(self) -> np.ndarray:
+        """(N,2) [m/s] world velocity of every slot now."""
+        return self._current_speed[:, None] * np.column_stack([np.cos(self._current_yaw),
+                                                              np.sin(self._current_yaw)])
+
+    def advise(self, ego: EgoState, accel: float = 2.0, decel: float = 3.0, headway: float = 1.5,
+               desired_speed: float = 8.0, accept_gap: float | None = None) -> float:
+        """The acceleration [m/s^2] traffic's own rules give the ego (a privileged autopilot): IDM behind
+        leaders and the corridor, stops for pedestrians, and gap acceptance at merges. Needs ego.path."""
+        if ego.path is None:
+            raise ValueError("advise needs the ego's lane path")
+        self.ego = ego
+        self._obstacle_cache = None
+        ctx = self._context()
+        f = {"rows": np.array([self.nv]), "path": ctx["path"][-1:], "start": ctx["start"][-1:],
+             "s": np.array([ego.s]), "v": np.array([max(ego.speed, 0.0)]), "v0": np.array([desired_speed]),
+             "length": np.array([ego.length]), "width": np.array([ego.width]), "a": np.array([accel]),
+             "b": np.array([decel]), "T": np.array([headway]), "xy": np.array([[ego.x, ego.y]]),
+             "yaw": np.array([ego.yaw]),
+             "accept_gap": self.config.accept_gap if accept_gap is None else accept_gap}
+        return float(self._accelerations(f, ctx)[0])

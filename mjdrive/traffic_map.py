@@ -1,0 +1,254 @@
+"""Build-time tables of a RoadMap for `mjdrive.traffic`: every lane polyline in flat arrays, successors,
+same-direction neighbours, merges (where entering lanes yield), crosswalk crossings and spawn points.
+
+Everything here is computed once per map (Python loops over lanes and crosswalks are fine at build time);
+`TrafficMap.lookup` then turns (lane, s) arrays of any shape into poses with one `searchsorted`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mjdrive.roads import Marking, RoadMap
+
+LANE_GAP = 1.0  # [m] gap between consecutive lanes in the flat arc-length coordinate
+REFERENCE_HALF_SIZE = (2.4, 1.0)  # [m] half length and half width of the largest vehicle (stop lines)
+STOP_CLEARANCE = 0.6  # [m] a vehicle waiting at a merge stop line stays this far outside the priority lane
+SPAWN_STEP = 3.0  # [m] candidate spawn points along each lane
+SPAWN_MARGIN = 5.0  # [m] from the lane ends
+
+
+def _polyline_distance(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
+    """Distance (K,) [m] from points (K,2) to a polyline (N,2) (exact, over all segments)."""
+    a, b = polyline[:-1], polyline[1:]
+    ab = b - a
+    t = np.clip(np.einsum("kni,ni->kn", points[:, None] - a[None], ab) / np.einsum("ni,ni->n", ab, ab), 0, 1)
+    closest = a[None] + t[..., None] * ab[None]
+    return np.hypot(*(points[:, None] - closest).transpose(2, 0, 1)).min(axis=1)
+
+
+def _corners(centre: np.ndarray, heading: np.ndarray, half_length: float, half_width: float) -> np.ndarray:
+    """Footprint corners and front/rear midpoints (K,6,2) [m] of boxes at centre (K,2), heading (K,)."""
+    c, s = np.cos(heading)[:, None], np.sin(heading)[:, None]
+    lx = np.array([1, 1, -1, -1, 1, -1]) * half_length
+    ly = np.array([1, -1, -1, 1, 0, 0]) * half_width
+    return np.stack([centre[:, :1] + c * lx - s * ly, centre[:, 1:] + s * lx + c * ly], axis=-1)
+
+
+class TrafficMap:
+    """Flat numpy tables of a road map for traffic (see the module docstring). Lane ids are the map's."""
+
+    def __init__(self, road_map: RoadMap, lateral_accel: float = 2.5, anticipation: float = 1.5):
+        """`lateral_accel` [m/s^2] sets the curve speed sqrt(lateral_accel / curvature); vehicles slow down
+        for curves ahead (also on the next lanes) at `anticipation` [m/s^2]."""
+        self.road_map = road_map
+        lanes = road_map.lanes
+        n = len(lanes)
+        if n == 0:
+            raise ValueError("traffic needs a road map with lanes")
+        self.n_lanes = n
+        self.length = np.array([lane.length for lane in lanes])  # [m]
+        self.width = np.array([lane.width for lane in lanes])  # [m]
+        self.speed_limit = np.array([lane.speed_limit for lane in lanes])  # [m/s]
+        self.in_junction = np.array([lane.in_junction for lane in lanes])
+        self._flatten()
+        self._graph()
+        self._curve_speed(lateral_accel, anticipation)
+        self._merges()
+        self._crossings()
+        self._spawn_points()
+
+    # --- flat polylines --------------------------------------------------------------------------------
+    def _flatten(self) -> None:
+        lanes = self.road_map.lanes
+        counts = np.array([len(lane.centre) for lane in lanes])
+        self.first = np.concatenate([[0], np.cumsum(counts)[:-1]])  # first vertex of each lane
+        self.last_segment = self.first + counts - 2  # last segment index of each lane
+        self.base = np.concatenate([[0.0], np.cumsum(self.length + LANE_GAP)[:-1]])  # [m] flat offset
+        g = np.concatenate([b + lane.s for b, lane in zip(self.base, lanes, strict=True)])
+        xy = np.concatenate([lane.centre for lane in lanes])
+        h = np.concatenate([lane.vertex_heading for lane in lanes])  # unwrapped within each lane
+        k = np.concatenate([lane.vertex_curvature for lane in lanes])
+        self.g = g
+        # Per segment (vertex i to i+1); segments that join two lanes are never selected by `lookup`.
+        dg = np.diff(g)
+        self._inv = 1.0 / np.where(dg > 1e-12, dg, 1.0)
+        self._x0, self._dx = xy[:-1, 0], np.diff(xy[:, 0])
+        self._y0, self._dy = xy[:-1, 1], np.diff(xy[:, 1])
+        self._h0, self._dh = h[:-1], np.diff(h)
+        self._k0, self._dk = k[:-1], np.diff(k)
+
+    def _segment(self, lane: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        gq = self.base[lane] + np.clip(s, 0.0, self.length[lane])
+        i = np.searchsorted(self.g, gq, side="right") - 1
+        i = np.clip(i, self.first[lane], self.last_segment[lane])
+        return i, (gq - self.g[i]) * self._inv[i]
+
+    def lookup(self, lane: np.ndarray, s: np.ndarray, curvature: bool = False):
+        """Centre-line x, y [m] and heading [rad] (and curvature [1/m]) at arc length s [m] on `lane`
+        (arrays of one shape; s is clamped to the lane)."""
+        i, t = self._segment(lane, s)
+        x = self._x0[i] + t * self._dx[i]
+        y = self._y0[i] + t * self._dy[i]
+        h = self._h0[i] + t * self._dh[i]
+        if curvature:
+            return x, y, h, self._k0[i] + t * self._dk[i]
+        return x, y, h
+
+    def curve_speed(self, lane: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Curve speed [m/s] anticipating the curves ahead on `lane` (at `anticipation` deceleration; add
+        those of the next lane with `entry_speed`), and the curvature [1/m], at arc length s [m] on `lane`."""
+        i, t = self._segment(lane, s)
+        return self._v0[i] + t * self._dv[i], self._k0[i] + t * self._dk[i]
+
+    def _curve_speed(self, lateral_accel: float, anticipation: float) -> None:
+        """Per vertex: the highest speed from which every curve ahead (this lane and, at its end, the slowest
+        successor, recursively) can be taken at `lateral_accel` after braking at `anticipation`."""
+        lanes = self.road_map.lanes
+        own = [np.sqrt(lateral_accel / np.maximum(np.abs(lane.vertex_curvature), 1e-4)).clip(max=40.0)
+               for lane in lanes]
+        within = []
+        for lane, c in zip(lanes, own, strict=True):
+            ahead = lane.s[None, :] - lane.s[:, None]  # (N, N) distance from vertex a to vertex b
+            cap = np.where(ahead >= 0, np.sqrt(c[None] ** 2 + 2 * anticipation * np.maximum(ahead, 0)), np.inf)
+            within.append(cap.min(axis=1))
+        entry = np.array([c[0] for c in within])  # [m/s] anticipated cap at each lane's start
+        for _ in range(4):  # successors of successors (conservative: the slowest of them)
+            new = entry.copy()
+            for i, lane in enumerate(lanes):
+                succ = self.successors[i, : self.n_successors[i]]
+                if len(succ):
+                    new[i] = min(within[i][0], np.sqrt(entry[succ].min() ** 2 + 2 * anticipation * lane.length))
+            entry = new
+        self.entry_speed = entry  # [m/s] (L,) the curve speed at each lane's start, anticipating its successors
+        self.anticipation = anticipation
+        v = np.concatenate(within)  # the curves of the lane itself; the next lane is added at run time
+        self._v0, self._dv = v[:-1], np.diff(v)
+
+    # --- lane graph ------------------------------------------------------------------------------------
+    def _graph(self) -> None:
+        rm = self.road_map
+        n = self.n_lanes
+        width = max(1, max(len(s) for s in rm.successors))
+        self.successors = np.full((n, width), -1, dtype=np.int64)
+        self.n_successors = np.zeros(n, dtype=np.int64)
+        for i, succ in enumerate(rm.successors):
+            self.successors[i, : len(succ)] = succ
+            self.n_successors[i] = len(succ)
+        n_pred = np.zeros(n, dtype=np.int64)
+        for succ in rm.successors:
+            n_pred[succ] += 1
+        self.predecessors = [rm.predecessors(i) for i in range(n)]
+        self.sources = np.flatnonzero((n_pred == 0) & ~self.in_junction)  # where traffic enters the map
+        self.source_xy = np.array([rm.lanes[i].centre[0] for i in self.sources]).reshape(-1, 2)  # [m]
+        # Same-direction neighbours a vehicle may change to (not across a SOLID line); -1 if none.
+        self.right = np.full(n, -1, dtype=np.int64)
+        self.left = np.full(n, -1, dtype=np.int64)
+        for i, lane in enumerate(rm.lanes):
+            r, left = rm.right_neighbour[i], rm.left_neighbour[i]
+            if r is not None and lane.right_marking != Marking.SOLID:
+                self.right[i] = r
+            if left is not None and lane.left_marking != Marking.SOLID:
+                self.left[i] = left
+
+    # --- merges ------------------------------------------------------------------------------------------
+    def _merges(self) -> None:
+        """Junction lanes (entries) that join a lane which also continues a non-junction lane (the ring)
+        yield there; each gets a stop line: the farthest front-bumper position [m] along it from which a
+        vehicle stays STOP_CLEARANCE outside the priority lanes."""
+        rm = self.road_map
+        hl, hw = REFERENCE_HALF_SIZE
+        rows = []
+        for m in range(self.n_lanes):
+            preds = self.predecessors[m]
+            priority = [p for p in preds if not self.in_junction[p]]
+            if len(preds) < 2 or not priority:
+                continue
+            for y in preds:
+                if not self.in_junction[y]:
+                    continue
+                lane = rm.lanes[y]
+                front = np.arange(-10.0, lane.length + 1e-9, 0.1)
+                centre_s = front - hl
+                centre = lane.position(centre_s)
+                pts = _corners(centre, lane.heading(centre_s), hl, hw).reshape(-1, 2)
+                clear = np.ones(len(front), dtype=bool)
+                for p in [*priority, m]:
+                    other = rm.lanes[p]
+                    dist = _polyline_distance(pts, other.centre).reshape(len(front), -1).min(axis=1)
+                    clear &= dist >= other.width / 2 + STOP_CLEARANCE
+                blocked = np.flatnonzero(~clear)
+                stop = front[blocked[0] - 1] if len(blocked) and blocked[0] > 0 else front[0]
+                if not len(blocked):
+                    stop = front[-1]
+                rows.append((y, m, float(stop)))
+        rows = rows or [(-1, -1, 0.0)]
+        self.yield_lane = np.array([r[0] for r in rows], dtype=np.int64)  # entering lane (-1: none)
+        self.yield_merge = np.array([r[1] for r in rows], dtype=np.int64)  # the lane it joins
+        self.yield_stop = np.array([r[2] for r in rows])  # [m] front-bumper stop position along it
+        if self.yield_lane[0] < 0:
+            self.yield_lane = self.yield_lane[:0]
+            self.yield_merge = self.yield_merge[:0]
+            self.yield_stop = self.yield_stop[:0]
+
+    # --- crosswalks --------------------------------------------------------------------------------------
+    def _crossings(self) -> None:
+        """Where lane centre lines cross crosswalks: lane, s interval [m], crosswalk, u interval [m] (the
+        lane's strip in the crosswalk's walking coordinate u, 0 at the crosswalk centre)."""
+        rm = self.road_map
+        cws = rm.crosswalks
+        self.n_crosswalks = len(cws)
+        self.cw_centre = np.array([np.asarray(c.centre, float) for c in cws]).reshape(-1, 2)
+        self.cw_heading = np.array([c.heading for c in cws])
+        self.cw_along = np.column_stack([np.cos(self.cw_heading), np.sin(self.cw_heading)]).reshape(-1, 2)
+        self.cw_across = np.column_stack([-self.cw_along[:, 1], self.cw_along[:, 0]]).reshape(-1, 2)
+        self.cw_half_length = np.array([c.length / 2 for c in cws])  # [m] half the road width it spans
+        self.cw_width = np.array([c.width for c in cws])  # [m] along the road
+        rows = []
+        for c in range(self.n_crosswalks):
+            for i, lane in enumerate(rm.lanes):
+                rel = lane.centre - self.cw_centre[c]
+                u, v = rel @ self.cw_along[c], rel @ self.cw_across[c]
+                inside = (np.abs(u) <= self.cw_half_length[c]) & (np.abs(v) <= self.cw_width[c] / 2)
+                if not inside.any():
+                    continue
+                s_in = lane.s[inside]
+                uc = float(np.mean(u[inside]))
+                rows.append((i, s_in.min() - 0.25, s_in.max() + 0.25, c, uc - lane.width / 2,
+                             uc + lane.width / 2))
+        table = np.array(rows, dtype=float).reshape(-1, 6)
+        self.cross_lane = table[:, 0].astype(np.int64)
+        self.cross_s = table[:, 1:3]  # [m] (K,2) interval along the lane
+        self.cross_cw = table[:, 3].astype(np.int64)
+        self.cross_u = table[:, 4:6]  # [m] (K,2) interval along the crosswalk
+
+    # --- spawn points ------------------------------------------------------------------------------------
+    def _spawn_points(self) -> None:
+        """Places (lane, s) on non-junction lanes, off crosswalks, pairwise far enough apart that any two
+        vehicles placed on them never overlap (greedy, in lane order)."""
+        lanes, ss = [], []
+        for i, lane in enumerate(self.road_map.lanes):
+            if self.in_junction[i] or lane.length < 2 * SPAWN_MARGIN:
+                continue
+            s = np.arange(SPAWN_MARGIN, lane.length - SPAWN_MARGIN + 1e-9, SPAWN_STEP)
+            on_cw = np.zeros(len(s), dtype=bool)
+            for k in np.flatnonzero(self.cross_lane == i):
+                lo, hi = self.cross_s[k]
+                on_cw |= (s > lo - 3.0) & (s < hi + 3.0)
+            lanes.append(np.full((~on_cw).sum(), i))
+            ss.append(s[~on_cw])
+        lane = np.concatenate(lanes) if lanes else np.zeros(0, np.int64)
+        s = np.concatenate(ss) if ss else np.zeros(0)
+        x, y, h = self.lookup(lane, s)
+        keep: list[int] = []
+        for k in range(len(lane)):
+            if keep:
+                dx, dy = x[keep] - x[k], y[keep] - y[k]
+                dist = np.hypot(dx, dy)
+                lateral = np.abs(-np.sin(h[k]) * dx + np.cos(h[k]) * dy)
+                if np.any((dist < 4.5) | ((dist < 10.0) & (lateral < 2.8))):
+                    continue
+            keep.append(k)
+        self.spawn_lane = lane[keep].astype(np.int64)
+        self.spawn_s = s[keep]
+        self.spawn_xy = np.column_stack([x[keep], y[keep]])
