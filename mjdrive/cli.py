@@ -127,6 +127,18 @@ def cmd_bench(args) -> int:
     return 0
 
 
+def cmd_train(args) -> int:
+    from agents.train import train_command  # needs the `learn` extra (torch, rsl-rl)
+
+    return train_command(args)
+
+
+def cmd_eval(args) -> int:
+    from agents.evaluate import eval_command
+
+    return eval_command(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mjdrive", description="MuJoCo driving-simulation suite for RL.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -166,6 +178,33 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--image-size", type=int, default=128)
     bench.add_argument("--out", default=None, help="also write the report to this file")
     bench.set_defaults(func=cmd_bench)
+
+    train = sub.add_parser("train", help="train a learner (ppo, sac, dqn, trpo) on a task")
+    train.add_argument("--algo", default="ppo", help="ppo | sac | dqn | trpo (config: agents/configs/ALGO.yaml)")
+    train.add_argument("--config", default=None, help="config file, or name in agents/configs/ (e.g. ppo_camera)")
+    train.add_argument("--task", default=None, help="DOMAIN/TASK (default: the config's)")
+    train.add_argument("--task-kwarg", action="append", default=[], metavar="KEY=VALUE",
+                       help="task keyword argument, e.g. observation=camera (repeatable)")
+    train.add_argument("--steps", type=int, default=None, help="env steps (default: the config's)")
+    train.add_argument("--seed", type=int, default=None)
+    train.add_argument("--num-envs", type=int, default=None, help="env copies stepped together")
+    train.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                       help="config override, dots for nesting, e.g. algorithm.batch_size=128 (repeatable)")
+    train.add_argument("--out", default=None, help="run folder (default: runs/ALGO_TASK_seedS)")
+    train.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    train.add_argument("--no-progress", action="store_true", help="no progress bar")
+    train.set_defaults(func=cmd_train)
+
+    evaluate = sub.add_parser("eval", help="evaluate a checkpoint: the study's table as markdown and JSON")
+    evaluate.add_argument("--checkpoint", required=True, help="a run's policy.pt or checkpoint.pt")
+    evaluate.add_argument("--episodes", type=int, default=50)
+    evaluate.add_argument("--task", default=None, help="DOMAIN/TASK (default: the one it was trained on)")
+    evaluate.add_argument("--task-kwarg", action="append", default=[], metavar="KEY=VALUE",
+                          help="task keyword argument, e.g. time_limit=20 (repeatable)")
+    evaluate.add_argument("--seed", type=int, default=10_000, help="seed of the first episode")
+    evaluate.add_argument("--stochastic", action="store_true", help="sample actions instead of greedy ones")
+    evaluate.add_argument("--out", default=None, help="write OUT.md and OUT.json")
+    evaluate.set_defaults(func=cmd_eval)
     return parser
 
 

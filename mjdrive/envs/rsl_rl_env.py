@@ -25,6 +25,15 @@ from mjdrive.envs.batched import BatchedEnv, ObservationLayout
 LOGGED_METRICS = ("route_completion", "success", "collision", "lane_invasion", "off_road")
 
 
+def to_tensordict(layout: ObservationLayout, obs: dict[str, np.ndarray], device: str = "cpu") -> TensorDict:
+    """Batched numpy observations -> the observation groups ("policy", and "image" when there is one)."""
+    groups = {"policy": torch.as_tensor(layout.features(obs), device=device)}
+    image = layout.image(obs)
+    if image is not None:
+        groups["image"] = torch.as_tensor(image, device=device).float().div_(255.0)
+    return TensorDict(groups, batch_size=[len(groups["policy"])], device=device)
+
+
 def action_scaler(space: gym.spaces.Box) -> tuple[np.ndarray, np.ndarray]:
     """(scale, offset) such that env_action = offset + scale * clip(a, -1, 1)."""
     low, high = space.low.astype(np.float32), space.high.astype(np.float32)
@@ -48,8 +57,10 @@ class RslRlVecEnv(VecEnv):
         self.cfg = {"domain": env.domain, "task": env.task_name, "num_envs": env.num_envs,
                     "task_kwargs": env.task_kwargs, "reward_scale": reward_scale}
         self._scale, self._offset = action_scaler(env.single_action_space)
-        self._obs = self.to_tensordict(env.reset(seed=0)[0]) if not env._obs else self.to_tensordict(
-            env.observations())
+        self.completed: list[dict] = []  # final infos of the episodes ended since the caller last cleared it
+        if not env._obs:
+            env.reset(seed=0)
+        self._obs = self.to_tensordict(env.observations())
 
     def seed(self, seed: int) -> None:
         """Reset every copy with `seed` (copy i gets seed + i)."""
@@ -57,12 +68,7 @@ class RslRlVecEnv(VecEnv):
         self.episode_length_buf.zero_()
 
     def to_tensordict(self, obs: dict[str, np.ndarray]) -> TensorDict:
-        """Batched numpy observations -> the observation groups."""
-        groups = {"policy": torch.as_tensor(self.layout.features(obs), device=self.device)}
-        image = self.layout.image(obs)
-        if image is not None:
-            groups["image"] = torch.as_tensor(image, device=self.device).float().div_(255.0)
-        return TensorDict(groups, batch_size=[len(groups["policy"])], device=self.device)
+        return to_tensordict(self.layout, obs, self.device)
 
     def env_actions(self, actions: torch.Tensor) -> np.ndarray:
         """Policy outputs (N, A) -> env commands within the action bounds."""
@@ -80,6 +86,7 @@ class RslRlVecEnv(VecEnv):
         self.episode_length_buf[torch.as_tensor(done, device=self.device)] = 0
         extras: dict = {"time_outs": torch.as_tensor(truncated & ~terminated, device=self.device)}
         finals = [f for f in info["final_info"] if f is not None]
+        self.completed.extend(finals)
         if finals:
             extras["log"] = {f"/episode/{key}": torch.tensor([float(f.get(key, 0.0)) for f in finals])
                              for key in LOGGED_METRICS if key in finals[0]}

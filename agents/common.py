@@ -1,0 +1,373 @@
+"""What every learner shares: configs, seeding, envs from a config, encoders, replay buffer, checkpoints,
+and the run bookkeeping (progress bar, TensorBoard, episode log, periodic checkpoints, resume)."""
+
+from __future__ import annotations
+
+import copy
+import csv
+import json
+import random
+import time
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+import torch.nn as nn
+
+from mjdrive.envs.batched import BatchedEnv, ObservationLayout
+
+CONFIG_DIR = Path(__file__).resolve().parent / "configs"
+CHECKPOINT_FORMAT = "mjdrive.agents.checkpoint"
+CHECKPOINT_VERSION = 1
+
+
+# --- configs ------------------------------------------------------------------------------------------
+
+def load_config(name_or_path: str | Path) -> dict[str, Any]:
+    """A config from a .yaml/.json file, or by name from agents/configs/ (e.g. "sac_camera84")."""
+    path = Path(name_or_path)
+    if not path.exists():
+        for suffix in (".yaml", ".json"):
+            if (CONFIG_DIR / f"{name_or_path}{suffix}").exists():
+                path = CONFIG_DIR / f"{name_or_path}{suffix}"
+                break
+        else:
+            names = sorted(p.stem for p in CONFIG_DIR.glob("*.yaml"))
+            raise ValueError(f"no config {str(name_or_path)!r}; give a file or one of: {', '.join(names)}")
+    text = path.read_text()
+    if path.suffix == ".json":
+        return json.loads(text)
+    import yaml
+
+    return yaml.safe_load(text)
+
+
+def apply_overrides(config: dict, pairs: list[str]) -> dict:
+    """`a.b=value` pairs (value parsed as YAML: numbers, booleans, lists) applied to a copy of `config`."""
+    import yaml
+
+    config = copy.deepcopy(config)
+    for pair in pairs:
+        if "=" not in pair:
+            raise ValueError(f"override must be KEY=VALUE (dots for nesting), got {pair!r}")
+        key, value = pair.split("=", 1)
+        node = config
+        *parents, leaf = key.split(".")
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[leaf] = yaml.safe_load(value)
+    return config
+
+
+def set_seed(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+# --- environments -------------------------------------------------------------------------------------
+
+def split_task(name: str) -> tuple[str, str]:
+    if "/" not in name:
+        raise ValueError(f"task must be DOMAIN/TASK (e.g. waypoints/straight), got {name!r}")
+    domain, task = name.split("/", 1)
+    return domain, task
+
+
+def make_batched_env(config: dict, num_envs: int | None = None, **overrides) -> BatchedEnv:
+    """The BatchedEnv a config describes (`task`, `task_kwargs`, `actions`, `num_envs`, `nthread`, `backend`)."""
+    domain, task = split_task(config["task"])
+    task_kwargs = {**config.get("task_kwargs", {}), **overrides}
+    return BatchedEnv(domain, task, num_envs=num_envs or config.get("num_envs", 1),
+                      actions=config.get("actions", "continuous"), nthread=config.get("nthread", 1),
+                      backend=config.get("backend", "threads"), **task_kwargs)
+
+
+def bounded_action_map(space: gym.spaces.Box) -> tuple[torch.Tensor, torch.Tensor]:
+    """(scale, bias) with env_action = bias + scale * a for a in [-1, 1] (tanh-squashed policies)."""
+    low, high = torch.as_tensor(space.low, dtype=torch.float32), torch.as_tensor(space.high, dtype=torch.float32)
+    return (high - low) / 2.0, (high + low) / 2.0
+
+
+# --- networks -----------------------------------------------------------------------------------------
+
+def mlp(in_dim: int, hidden: list[int], out_dim: int | None, activation: type[nn.Module] = nn.ReLU) -> nn.Sequential:
+    """Linear-activation stack; `out_dim=None` ends on the last hidden layer's activation."""
+    layers: list[nn.Module] = []
+    for width in hidden:
+        layers += [nn.Linear(in_dim, width), activation()]
+        in_dim = width
+    if out_dim is not None:
+        layers.append(nn.Linear(in_dim, out_dim))
+    return nn.Sequential(*layers)
+
+
+class StudyCNN(nn.Module):
+    """The CNN of study 000 (§4.2, eq 10): 3 conv layers 5x5 stride 2, then average pooling to 1x1, flatten.
+
+    The paper is inconsistent: its text gives 16, 16 and 64 kernels, its figure 40x40x16, 18x18x64 and
+    7x7x256 feature maps (hence h_t in R^256 and hd_t in R^258, eq 11). The spatial sizes of both agree
+    (84 -> 40 -> 18 -> 7 with 5x5 stride 2, no padding); only the channel counts differ. We follow the text,
+    channels (16, 16, 64), so h_t has 64 entries and [h_t, dest_t] 66; pass channels=(16, 64, 256) for the
+    figure's version. `pool="none"` flattens the last feature map instead (keeps where things are in the
+    image, which a waypoint-following camera agent needs) and projects it to `out_dim`.
+    """
+
+    def __init__(self, in_shape: tuple[int, int, int], channels: tuple[int, ...] = (16, 16, 64),
+                 kernel: int = 5, stride: int = 2, pool: str = "avg", out_dim: int = 256):
+        super().__init__()
+        layers: list[nn.Module] = []
+        c = in_shape[0]
+        for width in channels:
+            layers += [nn.Conv2d(c, width, kernel, stride), nn.ReLU()]
+            c = width
+        if pool == "avg":
+            layers += [nn.AdaptiveAvgPool2d(1), nn.Flatten()]
+        elif pool == "none":
+            layers.append(nn.Flatten())
+        else:
+            raise ValueError(f"pool must be 'avg' or 'none', got {pool!r}")
+        self.net = nn.Sequential(*layers)
+        with torch.no_grad():
+            n = self.net(torch.zeros(1, *in_shape)).shape[1]
+        if pool == "none":
+            self.net.append(nn.Linear(n, out_dim))
+            self.net.append(nn.ReLU())
+            n = out_dim
+        self.out_dim = n
+
+    def forward(self, image: torch.Tensor) -> torch.Tensor:
+        """image: (B, C, H, W) uint8 or float in [0, 255]."""
+        return self.net(image.float() / 255.0)
+
+
+class Encoder(nn.Module):
+    """Observation -> latent: [CNN(image), features] when there is an image (the studies concatenate the
+    CNN output with d, θ, v or the destination vector), else the (scaled) features alone."""
+
+    def __init__(self, layout: ObservationLayout, cnn: dict | None = None):
+        super().__init__()
+        self.cnn = StudyCNN(layout.image_shape, **(cnn or {})) if layout.image_key else None
+        self.out_dim = layout.feature_dim + (self.cnn.out_dim if self.cnn else 0)
+
+    def forward(self, features: torch.Tensor, image: torch.Tensor | None = None) -> torch.Tensor:
+        if self.cnn is None:
+            return features
+        return torch.cat([self.cnn(image), features], dim=-1)
+
+
+class ObsBatch:
+    """Batched observations as torch tensors: `features` (B, F) float32 and `image` (B, C, H, W) uint8|None."""
+
+    def __init__(self, features: torch.Tensor, image: torch.Tensor | None):
+        self.features, self.image = features, image
+
+    @classmethod
+    def from_numpy(cls, layout: ObservationLayout, obs: dict[str, np.ndarray], device: str = "cpu") -> ObsBatch:
+        image = layout.image(obs)
+        return cls(torch.as_tensor(layout.features(obs), device=device),
+                   None if image is None else torch.as_tensor(image, device=device))
+
+
+# --- replay buffer ------------------------------------------------------------------------------------
+
+class ReplayBuffer:
+    """Uniform replay of (obs, action, reward, next_obs, terminated); images kept as uint8.
+
+    Only `terminated` stops bootstrapping: a time-limit truncation keeps its true final observation
+    (BatchedEnv's `info["final_observation"]`) as next_obs and is bootstrapped like any other step.
+    Memory: 2 x capacity x image bytes (84x84x4: 56 kB per transition; 128x128x3: 98 kB).
+    """
+
+    def __init__(self, capacity: int, layout: ObservationLayout, action_shape: tuple[int, ...],
+                 action_dtype=np.float32, device: str = "cpu"):
+        self.capacity, self.layout, self.device = int(capacity), layout, device
+        self.features = np.zeros((self.capacity, layout.feature_dim), np.float32)
+        self.next_features = np.zeros_like(self.features)
+        shape = layout.image_shape
+        self.images = np.zeros((self.capacity, *shape), np.uint8) if shape else None
+        self.next_images = np.zeros_like(self.images) if shape else None
+        self.actions = np.zeros((self.capacity, *action_shape), action_dtype)
+        self.rewards = np.zeros(self.capacity, np.float32)
+        self.terminated = np.zeros(self.capacity, np.float32)
+        self.position, self.size = 0, 0
+
+    def add(self, obs: dict, actions: np.ndarray, rewards: np.ndarray, next_obs: dict,
+            terminated: np.ndarray) -> None:
+        """Add a batch of transitions (one per env copy)."""
+        features, next_features = self.layout.features(obs), self.layout.features(next_obs)
+        images, next_images = self.layout.image(obs), self.layout.image(next_obs)
+        for i in range(len(rewards)):
+            k = self.position
+            self.features[k], self.next_features[k] = features[i], next_features[i]
+            if self.images is not None:
+                self.images[k], self.next_images[k] = images[i], next_images[i]
+            self.actions[k], self.rewards[k], self.terminated[k] = actions[i], rewards[i], terminated[i]
+            self.position = (k + 1) % self.capacity
+            self.size = min(self.size + 1, self.capacity)
+
+    def sample(self, batch_size: int) -> dict[str, Any]:
+        idx = np.random.randint(0, self.size, size=batch_size)
+
+        def t(array):
+            return None if array is None else torch.as_tensor(array[idx], device=self.device)
+
+        return {"obs": ObsBatch(t(self.features), t(self.images)),
+                "next_obs": ObsBatch(t(self.next_features), t(self.next_images)),
+                "actions": t(self.actions), "rewards": t(self.rewards), "terminated": t(self.terminated)}
+
+
+# --- checkpoints --------------------------------------------------------------------------------------
+
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be used: missing, corrupt, of another format, algorithm or network shape."""
+
+
+def save_checkpoint(path: str | Path, algo: str, config: dict, state: dict, step: int,
+                    extra: dict | None = None) -> Path:
+    """Write {format, version, algo, config, step, state, extra} atomically (tmp file + rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "algo": algo, "config": config,
+               "step": int(step), "state": state, "extra": extra or {}, "saved_at": time.time()}
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save(payload, tmp)
+    tmp.replace(path)
+    return path
+
+
+def load_checkpoint(path: str | Path, algo: str | None = None) -> dict:
+    """Read and validate a checkpoint; raises CheckpointError with the reason."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"checkpoint {path} does not exist")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as error:  # truncated file, not a torch file, unpickling error, ...
+        raise CheckpointError(f"checkpoint {path} is corrupt or not a torch file ({type(error).__name__}: "
+                              f"{str(error)[:200]})") from error
+    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
+        raise CheckpointError(f"{path} is not an mjdrive agent checkpoint (no '{CHECKPOINT_FORMAT}' header)")
+    if payload.get("version") != CHECKPOINT_VERSION:
+        raise CheckpointError(f"{path} has checkpoint version {payload.get('version')}, "
+                              f"this code reads version {CHECKPOINT_VERSION}")
+    for key in ("algo", "config", "state", "step"):
+        if key not in payload:
+            raise CheckpointError(f"{path} lacks '{key}'")
+    if algo is not None and payload["algo"] != algo:
+        raise CheckpointError(f"{path} holds a {payload['algo']!r} agent, expected {algo!r}")
+    return payload
+
+
+def load_module_state(module: nn.Module, state: dict, name: str) -> None:
+    """load_state_dict with a CheckpointError naming the mismatched parameters."""
+    own = module.state_dict()
+    missing = sorted(set(own) - set(state))
+    unexpected = sorted(set(state) - set(own))
+    shapes = [f"{k}: checkpoint {tuple(state[k].shape)} vs network {tuple(own[k].shape)}"
+              for k in own if k in state and hasattr(state[k], "shape") and state[k].shape != own[k].shape]
+    if missing or unexpected or shapes:
+        raise CheckpointError(f"{name} does not match the checkpoint: missing {missing[:5]}, unexpected "
+                              f"{unexpected[:5]}, shape mismatches {shapes[:5]} (was it trained with another "
+                              f"observation, action set or network config?)")
+    module.load_state_dict(state)
+
+
+# --- run bookkeeping ----------------------------------------------------------------------------------
+
+EPISODE_FIELDS = ("episode", "env_step", "wall_s", "return", "length", "route_completion", "success",
+                  "collision", "lane_invasion", "off_road", "time_limit")
+
+
+class Run:
+    """One training run's outputs in `out/`: config.yaml, episodes.csv (one row per ended episode),
+    TensorBoard scalars (tb/), checkpoints (checkpoint.pt = latest, checkpoints/step_N.pt), a tqdm bar."""
+
+    def __init__(self, out: str | Path, config: dict, total_steps: int, start_step: int = 0,
+                 start_episode: int = 0, progress: bool = True, tensorboard: bool = True):
+        import yaml
+        from tqdm import tqdm
+
+        self.out = Path(out)
+        self.out.mkdir(parents=True, exist_ok=True)
+        (self.out / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
+        self.config, self.total_steps = config, int(total_steps)
+        self.step, self.episode = int(start_step), int(start_episode)
+        self.checkpoint_every = int(config.get("checkpoint_every", 0) or 0)
+        self._next_checkpoint = (self.step // self.checkpoint_every + 1) * self.checkpoint_every \
+            if self.checkpoint_every else None
+        self.writer = None
+        if tensorboard:
+            from torch.utils.tensorboard import SummaryWriter
+
+            self.writer = SummaryWriter(str(self.out / "tb"))
+        new_file = not (self.out / "episodes.csv").exists() or start_step == 0
+        self._csv_file = open(self.out / "episodes.csv", "w" if new_file else "a", newline="")  # noqa: SIM115
+        self._csv = csv.DictWriter(self._csv_file, EPISODE_FIELDS, extrasaction="ignore")
+        if new_file:
+            self._csv.writeheader()
+        self.recent: list[float] = []
+        self.latest: dict[str, float] = {}  # last value of every scalar (written to scalars.json at close)
+        self.start_time = time.perf_counter()
+        self.bar = tqdm(total=self.total_steps, initial=self.step, unit="step", disable=not progress,
+                        dynamic_ncols=True, desc=config.get("algo", ""))
+
+    def add_steps(self, n: int, final_infos: list[dict | None] | None = None) -> None:
+        """Count `n` env steps and log the episodes that ended (BatchedEnv's `info["final_info"]`)."""
+        self.step += n
+        self.bar.update(n)
+        for final in final_infos or []:
+            if final is None:
+                continue
+            self.episode += 1
+            row = {"episode": self.episode, "env_step": self.step,
+                   "wall_s": round(time.perf_counter() - self.start_time, 2),
+                   "return": round(final["episode_return"], 3), "length": final["episode_length"],
+                   **{k: final[k] for k in EPISODE_FIELDS[5:] if k in final}}
+            self._csv.writerow(row)
+            self.recent = (self.recent + [final["episode_return"]])[-20:]
+            self.scalar("episode/return", final["episode_return"])
+            self.scalar("episode/length", final["episode_length"])
+            if "route_completion" in final:
+                self.scalar("episode/route_completion", final["route_completion"])
+        if self.recent:
+            self.bar.set_postfix(ep=self.episode, ret20=f"{np.mean(self.recent):.0f}", refresh=False)
+
+    def scalar(self, name: str, value: float) -> None:
+        self.latest[name] = float(value)
+        if self.writer is not None:
+            self.writer.add_scalar(name, float(value), self.step)
+
+    def scalars(self, values: dict[str, float], prefix: str = "train/") -> None:
+        for name, value in values.items():
+            self.scalar(prefix + name, value)
+
+    def checkpoint_due(self) -> bool:
+        return self._next_checkpoint is not None and self.step >= self._next_checkpoint
+
+    def save(self, algo: str, state: dict, extra: dict | None = None, periodic: bool = True) -> Path:
+        """Write checkpoint.pt (and checkpoints/step_N.pt when periodic)."""
+        extra = {"episode": self.episode, **(extra or {})}
+        path = save_checkpoint(self.out / "checkpoint.pt", algo, self.config, state, self.step, extra)
+        if periodic:
+            save_checkpoint(self.out / "checkpoints" / f"step_{self.step}.pt", algo, self.config, state,
+                            self.step, extra)
+        if self.checkpoint_every:
+            self._next_checkpoint = (self.step // self.checkpoint_every + 1) * self.checkpoint_every
+        self._csv_file.flush()
+        return path
+
+    def close(self) -> None:
+        summary = {"env_steps": self.step, "episodes": self.episode,
+                   "wall_s": round(time.perf_counter() - self.start_time, 1), "latest": self.latest}
+        (self.out / "scalars.json").write_text(json.dumps(summary, indent=2) + "\n")
+        self.bar.close()
+        self._csv_file.close()
+        if self.writer is not None:
+            self.writer.close()
+
+    @property
+    def done(self) -> bool:
+        return self.step >= self.total_steps

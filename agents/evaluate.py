@@ -1,0 +1,168 @@
+"""`mjdrive eval`: run a checkpoint's greedy policy for N episodes and tabulate the study's metrics.
+
+waypoints (study 004 §4.1): route completion, mean and per episode (the study: straight route, 50 episodes,
+20 s, greedy). roundabout (study 000 Table 3): avg reward, avg time [s], avg speed [m/s], avg distance [m],
+avg steps, success %, collision %.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agents.common import CheckpointError, load_checkpoint, split_task
+from agents.train import agent_class
+from mjdrive.envs import make_env
+
+
+def load_agent(path: str | Path) -> tuple[Any, dict]:
+    """(agent ready to act, checkpoint payload) from a full checkpoint or a policy.pt."""
+    payload = load_checkpoint(path)
+    config = payload["config"]
+    domain, task = split_task(config["task"])
+    env = make_env(domain, task, actions=config.get("actions", "continuous"), **config.get("task_kwargs", {}))
+    try:
+        agent = agent_class(payload["algo"])(config, env.observation_space, env.action_space)
+    except (KeyError, TypeError) as error:
+        raise CheckpointError(f"{path}: its config cannot build a {payload['algo']} agent ({error})") from error
+    finally:
+        env.close()
+    agent.load_state_dict(payload["state"], inference_only=True)
+    return agent, payload
+
+
+def end_reason(info: dict, terminated: bool, truncated: bool) -> str:
+    for key in ("collision", "lane_invasion", "off_road"):
+        if info.get(key):
+            return key
+    if info.get("physics_error"):
+        return "physics_error"
+    if info.get("success"):
+        return "arrived"
+    return "time_limit" if truncated else ("terminated" if terminated else "running")
+
+
+def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None, seed: int = 10_000,
+             task_kwargs: dict | None = None, deterministic: bool = True) -> dict[str, Any]:
+    """Roll out the policy for `episodes` episodes (seeds seed, seed+1, ...); returns rows and a summary."""
+    agent, payload = load_agent(checkpoint)
+    config = payload["config"]
+    task = task or config["task"]
+    domain, name = split_task(task)
+    kwargs = {**config.get("task_kwargs", {}), **(task_kwargs or {})}
+    env = make_env(domain, name, actions=config.get("actions", "continuous"), **kwargs)
+    rows = []
+    start = time.perf_counter()
+    for episode in range(episodes):
+        obs, info = env.reset(seed=seed + episode)
+        total, steps = 0.0, 0
+        while True:
+            action = agent.act({key: value[None] for key, value in obs.items()}, deterministic)[0]
+            obs, reward, terminated, truncated, info = env.step(action)
+            total += reward
+            steps += 1
+            if terminated or truncated:
+                break
+        elapsed = float(info.get("elapsed_time", steps * env.unwrapped.dm_env.control_timestep()))
+        distance = float(info.get("distance", np.nan))
+        rows.append({
+            "episode": episode, "seed": seed + episode, "reward": round(total, 2), "steps": steps,
+            "time_s": round(elapsed, 2), "distance_m": round(distance, 2),
+            "speed_m_s": round(distance / elapsed, 3) if elapsed > 0 else 0.0,
+            "route_completion": round(float(info.get("route_completion", np.nan)), 4),
+            "success": bool(info.get("success", False)), "collision": bool(info.get("collision", False)),
+            "end": end_reason(info, terminated, truncated),
+        })
+    env.close()
+    return {"checkpoint": str(checkpoint), "algo": payload["algo"], "trained_on": config["task"],
+            "train_steps": payload["step"], "task": task, "task_kwargs": kwargs, "episodes": episodes,
+            "deterministic": deterministic, "seed": seed, "wall_s": round(time.perf_counter() - start, 1),
+            "summary": summarize(rows), "rows": rows}
+
+
+def summarize(rows: list[dict]) -> dict[str, float]:
+    def mean(key: str) -> float:
+        return float(np.mean([row[key] for row in rows]))
+
+    completion = [row["route_completion"] for row in rows]
+    return {
+        "avg_reward": round(mean("reward"), 2), "avg_time_s": round(mean("time_s"), 2),
+        "avg_speed_m_s": round(mean("speed_m_s"), 3), "avg_distance_m": round(mean("distance_m"), 2),
+        "avg_steps": round(mean("steps"), 1), "success_pct": round(100 * mean("success"), 1),
+        "collision_pct": round(100 * mean("collision"), 1),
+        "route_completion_mean": round(float(np.mean(completion)), 4),
+        "route_completion_min": round(float(np.min(completion)), 4),
+        "route_completion_max": round(float(np.max(completion)), 4),
+    }
+
+
+def to_markdown(result: dict) -> str:
+    """The study's table for the task's domain, then one row per episode."""
+    s = result["summary"]
+    lines = [
+        f"# {result['algo'].upper()} on {result['task']} ({result['episodes']} episodes, "
+        f"{'greedy' if result['deterministic'] else 'stochastic'} policy)",
+        "",
+        f"Checkpoint `{result['checkpoint']}`, trained on {result['trained_on']} for {result['train_steps']:,} "
+        f"env steps; task kwargs {result['task_kwargs']}; seeds {result['seed']}..."
+        f"{result['seed'] + result['episodes'] - 1}.",
+        "",
+    ]
+    if result["task"].startswith("roundabout"):
+        lines += [
+            "| agent | avg reward | avg time (s) | avg speed (m/s) | avg distance (m) | avg steps | success % "
+            "| collision % |",
+            "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+            f"| {result['algo'].upper()} | {s['avg_reward']:.2f} | {s['avg_time_s']:.2f} | "
+            f"{s['avg_speed_m_s']:.2f} | {s['avg_distance_m']:.2f} | {s['avg_steps']:.1f} | "
+            f"{s['success_pct']:.0f} | {s['collision_pct']:.0f} |",
+        ]
+    else:
+        lines += [
+            "| route completion mean | min | max | success % | collision % | avg reward | avg time (s) "
+            "| avg speed (m/s) |",
+            "| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+            f"| {100 * s['route_completion_mean']:.1f}% | {100 * s['route_completion_min']:.1f}% | "
+            f"{100 * s['route_completion_max']:.1f}% | {s['success_pct']:.0f} | {s['collision_pct']:.0f} | "
+            f"{s['avg_reward']:.1f} | {s['avg_time_s']:.2f} | {s['avg_speed_m_s']:.2f} |",
+        ]
+    lines += [
+        "",
+        "| episode | seed | route completion | reward | steps | time (s) | distance (m) | end |",
+        "| ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |",
+    ]
+    for row in result["rows"]:
+        lines.append(f"| {row['episode']} | {row['seed']} | {100 * row['route_completion']:.1f}% | "
+                     f"{row['reward']:.1f} | {row['steps']} | {row['time_s']:.1f} | {row['distance_m']:.1f} "
+                     f"| {row['end']} |")
+    return "\n".join(lines)
+
+
+def eval_command(args) -> int:
+    """`mjdrive eval` (argument parsing lives in mjdrive/cli.py): prints markdown, writes OUT.md/OUT.json."""
+    import json
+
+    import yaml
+
+    task_kwargs = {}
+    for pair in args.task_kwarg:
+        if "=" not in pair:
+            raise ValueError(f"--task-kwarg expects KEY=VALUE, got {pair!r}")
+        key, value = pair.split("=", 1)
+        task_kwargs[key] = yaml.safe_load(value)
+    result = evaluate(args.checkpoint, episodes=args.episodes, task=args.task, seed=args.seed,
+                      task_kwargs=task_kwargs, deterministic=not args.stochastic)
+    markdown = to_markdown(result)
+    print(markdown)
+    if args.out:
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.with_suffix(".md").write_text(markdown + "\n")
+        out.with_suffix(".json").write_text(json.dumps(result, indent=2) + "\n")
+        print(f"wrote {out.with_suffix('.md')} and {out.with_suffix('.json')}")
+    else:
+        print(json.dumps(result["summary"]))
+    return 0

@@ -1,0 +1,96 @@
+"""PPO through rsl-rl's OnPolicyRunner (MLPModel, or CNNModel for image observations) on RslRlVecEnv.
+
+The config's `rsl_rl` section is rsl-rl's own runner dict (num_steps_per_env, obs_groups, actor, critic,
+algorithm); this module only adds mjdrive's bookkeeping around `runner.learn` (progress bar, TensorBoard,
+episode log, checkpoints in our format, resume). Study 000 Table 2: actor lr 3e-4 (rsl-rl uses one lr for
+both networks), clip 0.1, 4 epochs.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+
+import gymnasium as gym
+import numpy as np
+import torch
+from rsl_rl.runners import OnPolicyRunner
+from rsl_rl.utils import resolve_class, resolve_obs_groups
+from tensordict import TensorDict
+
+from agents.common import CheckpointError, Run, load_module_state, make_batched_env
+from mjdrive.envs.batched import ObservationLayout
+from mjdrive.envs.rsl_rl_env import RslRlVecEnv, action_scaler, to_tensordict
+
+
+def zero_observation(layout: ObservationLayout, n: int = 1) -> TensorDict:
+    """A TensorDict with the observation groups' shapes (to build the models without an env)."""
+    groups = {"policy": torch.zeros(n, layout.feature_dim)}
+    if layout.image_shape:
+        groups["image"] = torch.zeros(n, *layout.image_shape)
+    return TensorDict(groups, batch_size=[n])
+
+
+class PPOAgent:
+    """The trained actor for evaluation: deterministic (mean) actions mapped onto the action bounds."""
+
+    algo = "ppo"
+
+    def __init__(self, config: dict, observation_space: gym.spaces.Dict, action_space: gym.Space):
+        if not isinstance(action_space, gym.spaces.Box):
+            raise ValueError("PPO (rsl-rl) needs continuous actions (actions: continuous)")
+        cfg = copy.deepcopy(config["rsl_rl"])
+        self.layout = ObservationLayout(observation_space)
+        obs = zero_observation(self.layout)
+        obs_groups = resolve_obs_groups(obs, cfg["obs_groups"], ["actor", "critic"])
+        actor_class, actor_cfg = resolve_class(cfg["actor"])
+        self.actor = actor_class(obs, obs_groups, "actor", int(np.prod(action_space.shape)), **actor_cfg)
+        self.actor.eval()
+        scale, offset = action_scaler(action_space)
+        self.scale, self.offset = scale, offset
+
+    @torch.no_grad()
+    def act(self, obs: dict[str, np.ndarray], deterministic: bool = True) -> np.ndarray:
+        td = to_tensordict(self.layout, obs)
+        a = self.actor(td, stochastic_output=not deterministic).numpy()
+        return self.offset + self.scale * np.clip(a, -1.0, 1.0)
+
+    def load_state_dict(self, state: dict, inference_only: bool = True) -> None:
+        if "actor_state_dict" not in state:
+            raise CheckpointError("PPO state lacks 'actor_state_dict'")
+        load_module_state(self.actor, state["actor_state_dict"], "PPO actor")
+
+    def inference_state(self, state: dict) -> dict:
+        return {"actor_state_dict": state["actor_state_dict"]}
+
+
+def train(config: dict, run: Run, resume_state: dict | None = None) -> None:
+    """PPO iterations until `run.total_steps` env steps."""
+    cfg = copy.deepcopy(config["rsl_rl"])
+    cfg.setdefault("save_interval", 10**9)
+    env = RslRlVecEnv(make_batched_env(config), reward_scale=float(config.get("reward_scale", 1.0)))
+    env.seed(int(config.get("seed", 0)) + run.step)
+    runner = OnPolicyRunner(env, cfg, log_dir=None, device="cpu")  # no rsl-rl logger: we log ourselves
+    if resume_state is not None:
+        runner.alg.load(resume_state, None, strict=True)
+    losses: dict[str, float] = {}
+    update = runner.alg.update
+
+    def update_and_keep_losses() -> dict[str, float]:
+        losses.clear()
+        losses.update(update())
+        return losses
+
+    runner.alg.update = update_and_keep_losses
+    per_iteration = env.num_envs * cfg["num_steps_per_env"]
+    iterations = math.ceil((run.total_steps - run.step) / per_iteration)
+    for _ in range(iterations):
+        runner.learn(1)
+        run.add_steps(per_iteration, env.completed)
+        env.completed.clear()
+        run.scalars({**{f"{k}_loss": v for k, v in losses.items()}, "learning_rate": runner.alg.learning_rate,
+                     "action_std": runner.alg.get_policy().output_std.mean().item()})
+        if run.checkpoint_due():
+            run.save("ppo", runner.alg.save())
+    run.save("ppo", runner.alg.save(), periodic=False)
+    env.close()

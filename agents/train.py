@@ -1,0 +1,141 @@
+"""`mjdrive train`: one entry point over every learner (config in, run folder out).
+
+A run folder holds config.yaml, episodes.csv, tb/ (TensorBoard), checkpoint.pt (latest, full state),
+checkpoints/step_N.pt (periodic) and policy.pt (the acting network only, for evaluation and results/).
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from agents.common import (
+    CheckpointError,
+    ReplayBuffer,
+    Run,
+    load_checkpoint,
+    make_batched_env,
+    save_checkpoint,
+    set_seed,
+)
+
+ALGOS = ("ppo", "sac", "dqn", "trpo")
+# the entries of each learner's state that acting needs (policy.pt keeps only these)
+INFERENCE_KEYS = {"sac": ("actor",), "dqn": ("q",), "ppo": ("actor_state_dict",), "trpo": ("policy",)}
+# config keys that must match to resume a run
+RESUME_KEYS = ("algo", "task", "task_kwargs", "actions", "num_envs", "algorithm", "rsl_rl")
+
+
+def agent_class(algo: str):
+    """The acting/learning class of `algo` (imported lazily: PPO pulls rsl-rl in)."""
+    if algo == "sac":
+        from agents.sac import SACAgent
+
+        return SACAgent
+    if algo == "dqn":
+        from agents.dqn import DQNAgent
+
+        return DQNAgent
+    if algo == "ppo":
+        from agents.ppo import PPOAgent
+
+        return PPOAgent
+    if algo == "trpo":
+        from agents.trpo import TRPOAgent
+
+        return TRPOAgent
+    raise ValueError(f"unknown algo {algo!r}; valid: {', '.join(ALGOS)}")
+
+
+def train(config: dict, out: str | Path, resume: bool = False, progress: bool = True) -> Path:
+    """Train the learner `config["algo"]` for `config["steps"]` env steps; returns the policy.pt path.
+
+    `resume=True` continues from out/checkpoint.pt (networks, optimizers, step and episode counters;
+    an off-policy replay buffer is not saved and refills from the resumed policy).
+    """
+    config = copy.deepcopy(config)
+    algo = config.get("algo")
+    agent_class(algo)  # validates the name early
+    out = Path(out)
+    torch.set_num_threads(int(config.get("torch_threads", 1)))
+    seed = int(config.get("seed", 0))
+    set_seed(seed)
+    start_step, start_episode, state = 0, 0, None
+    if resume:
+        payload = load_checkpoint(out / "checkpoint.pt", algo)
+        for key in RESUME_KEYS:
+            if payload["config"].get(key) != config.get(key):
+                raise CheckpointError(f"cannot resume: config '{key}' differs from the checkpoint's "
+                                      f"({payload['config'].get(key)!r} vs {config.get(key)!r})")
+        start_step, state = payload["step"], payload["state"]
+        start_episode = payload["extra"].get("episode", 0)
+        set_seed(seed + start_step)
+    run = Run(out, config, total_steps=int(config["steps"]), start_step=start_step,
+              start_episode=start_episode, progress=progress, tensorboard=config.get("tensorboard", True))
+    try:
+        if algo == "ppo":
+            from agents import ppo
+
+            ppo.train(config, run, state)
+        elif algo == "trpo":
+            from agents import trpo
+
+            trpo.train(config, run, state)
+        else:
+            from agents.off_policy import run_off_policy
+
+            env = make_batched_env(config)
+            agent = agent_class(algo)(config, env.single_observation_space, env.single_action_space)
+            if state is not None:
+                agent.load_state_dict(state)
+            discrete = algo == "dqn"
+            buffer = ReplayBuffer(min(agent.hp["buffer_size"], int(config["steps"])), agent.layout,
+                                  () if discrete else env.single_action_space.shape,
+                                  np.int64 if discrete else np.float32)
+            hp = {**agent.hp, "reward_scale": config.get("reward_scale", 1.0),
+                  "log_every": config.get("log_every", 1000)}
+            run_off_policy(agent, env, run, buffer, hp, seed)
+            env.close()
+    finally:
+        run.close()
+    return export_policy(out / "checkpoint.pt", out / "policy.pt")
+
+
+def export_policy(checkpoint: str | Path, out: str | Path) -> Path:
+    """A small checkpoint with only the acting network (same format, `extra.inference_only`)."""
+    payload = load_checkpoint(checkpoint)
+    keys = INFERENCE_KEYS[payload["algo"]]
+    state = {key: payload["state"][key] for key in keys}
+    return save_checkpoint(out, payload["algo"], payload["config"], state, payload["step"],
+                           {**payload["extra"], "inference_only": True})
+
+
+def train_command(args) -> int:
+    """`mjdrive train` (argument parsing lives in mjdrive/cli.py)."""
+    from agents.common import apply_overrides, load_config
+
+    config = load_config(args.config or args.algo)
+    if args.config is None and config.get("algo") != args.algo:
+        raise ValueError(f"config {args.algo!r} is for {config.get('algo')!r}")
+    overrides = list(args.set)
+    if args.task:
+        overrides.append(f"task={args.task}")
+    if args.steps is not None:
+        overrides.append(f"steps={args.steps}")
+    if args.seed is not None:
+        overrides.append(f"seed={args.seed}")
+    if args.num_envs is not None:
+        overrides.append(f"num_envs={args.num_envs}")
+    overrides += [f"task_kwargs.{pair}" for pair in args.task_kwarg]
+    config = apply_overrides(config, overrides)
+    out = args.out or f"runs/{config['algo']}_{config['task'].replace('/', '_')}_seed{config.get('seed', 0)}"
+    import time
+
+    start = time.perf_counter()
+    policy = train(config, out, resume=args.resume, progress=not args.no_progress)
+    print(f"trained {config['algo']} on {config['task']} for {config['steps']:,} env steps in "
+          f"{time.perf_counter() - start:.0f} s; wrote {out}/ (policy: {policy})")
+    return 0

@@ -1,0 +1,135 @@
+"""Smoke tests of every learner: a few hundred steps, finite losses, checkpoints that load and act the same,
+clear errors for corrupt or mismatched checkpoints, resume."""
+
+import json
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("rsl_rl")
+
+from agents.common import (  # noqa: E402
+    CheckpointError,
+    apply_overrides,
+    load_checkpoint,
+    load_config,
+    save_checkpoint,
+)
+from agents.evaluate import evaluate, load_agent, to_markdown  # noqa: E402
+from agents.train import agent_class, train  # noqa: E402
+from mjdrive.envs.batched import BatchedEnv  # noqa: E402
+
+SMALL = ["num_envs=2", "nthread=1", "checkpoint_every=128", "log_every=50", "tensorboard=false",
+         "torch_threads=1"]
+OFF_POLICY = ["algorithm.learning_starts=64", "algorithm.batch_size=16", "algorithm.updates_per_step=0.5"]
+CAMERA = ["task_kwargs.observation=camera", "task_kwargs.image_size=32"]
+SMALL_CNN = "{channels: [8, 8, 16], kernel: 5, stride: 2, pool: avg}"
+PPO_CNN = "{output_channels: [8, 16], kernel_size: [5, 3], stride: [2, 2], activation: relu, flatten: true}"
+
+CASES = {
+    "ppo_mlp": ("ppo", ["steps=256", "rsl_rl.num_steps_per_env=32"]),
+    "ppo_cnn": ("ppo_camera", ["steps=128", "rsl_rl.num_steps_per_env=32", *CAMERA,
+                               f"rsl_rl.actor.cnn_cfg={PPO_CNN}", f"rsl_rl.critic.cnn_cfg={PPO_CNN}"]),
+    "sac_mlp": ("sac", ["steps=256", *OFF_POLICY]),
+    "sac_cnn": ("sac", ["steps=160", *OFF_POLICY, *CAMERA, f"algorithm.cnn={SMALL_CNN}"]),
+    "dqn_mlp": ("dqn", ["steps=256", *OFF_POLICY, "algorithm.target_every=10"]),
+    "dqn_cnn": ("dqn_camera", ["steps=160", "task=waypoints/straight", *OFF_POLICY, *CAMERA,
+                               f"algorithm.cnn={SMALL_CNN}"]),
+    "trpo_mlp": ("trpo", ["steps=256", "algorithm.rollout_steps=32"]),
+}
+
+
+def _config(name: str, overrides: list[str]) -> dict:
+    return apply_overrides(load_config(name), SMALL + overrides)
+
+
+def _observations(config: dict, n: int = 3) -> dict:
+    task_kwargs = config.get("task_kwargs", {})
+    env = BatchedEnv(*config["task"].split("/"), num_envs=n, actions=config["actions"], **task_kwargs)
+    obs, _ = env.reset(seed=1)
+    for _ in range(5):
+        obs = env.step(np.stack([env.single_action_space.sample() for _ in range(n)]))[0]
+    env.close()
+    return obs
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_learner_trains_saves_and_reloads(case, tmp_path):
+    name, overrides = CASES[case]
+    config = _config(name, overrides)
+    policy_path = train(config, tmp_path, progress=False)
+    scalars = json.loads((tmp_path / "scalars.json").read_text())
+    losses = {k: v for k, v in scalars["latest"].items() if "loss" in k}
+    assert losses and all(np.isfinite(v) for v in losses.values()), scalars
+    assert scalars["env_steps"] >= config["steps"]
+    assert (tmp_path / "episodes.csv").exists() and list((tmp_path / "checkpoints").glob("step_*.pt"))
+    # the small policy file and the full checkpoint act identically on the same observations
+    obs = _observations(config)
+    small, payload = load_agent(policy_path)
+    full, _ = load_agent(tmp_path / "checkpoint.pt")
+    assert payload["extra"]["inference_only"] and payload["config"]["algo"] == config["algo"]
+    np.testing.assert_array_equal(small.act(obs), full.act(obs))
+    assert policy_path.stat().st_size < 5e6
+
+
+@pytest.mark.parametrize("algo", ["sac", "dqn", "trpo"])
+def test_in_memory_agent_and_reloaded_agent_act_the_same(algo, tmp_path):
+    config = _config(algo, ["algorithm.hidden=[32, 32]"])
+    env = BatchedEnv("waypoints", "straight", num_envs=3, actions=config["actions"])
+    agent = agent_class(algo)(config, env.single_observation_space, env.single_action_space)
+    for p in (agent.q if algo == "dqn" else agent.policy if algo == "trpo" else agent.actor).parameters():
+        torch.nn.init.normal_(p, std=0.3)  # not the initial weights
+    save_checkpoint(tmp_path / "agent.pt", algo, config, agent.state_dict(), step=0)
+    reloaded, _ = load_agent(tmp_path / "agent.pt")
+    obs, _ = env.reset(seed=0)
+    np.testing.assert_array_equal(agent.act(obs), reloaded.act(obs))
+    env.close()
+
+
+def test_corrupt_wrong_and_mismatched_checkpoints_raise_clear_errors(tmp_path):
+    config = _config("sac", ["algorithm.hidden=[32, 32]"])
+    env = BatchedEnv("waypoints", "straight", num_envs=1)
+    agent = agent_class("sac")(config, env.single_observation_space, env.single_action_space)
+    env.close()
+    path = save_checkpoint(tmp_path / "sac.pt", "sac", config, agent.state_dict(), step=10)
+    truncated = tmp_path / "truncated.pt"
+    truncated.write_bytes(path.read_bytes()[:1000])
+    with pytest.raises(CheckpointError, match="corrupt"):
+        load_checkpoint(truncated)
+    with pytest.raises(CheckpointError, match="does not exist"):
+        load_checkpoint(tmp_path / "missing.pt")
+    other = tmp_path / "other.pt"
+    torch.save({"weights": torch.zeros(3)}, other)
+    with pytest.raises(CheckpointError, match="not an mjdrive agent checkpoint"):
+        load_checkpoint(other)
+    with pytest.raises(CheckpointError, match="holds a 'sac' agent, expected 'dqn'"):
+        load_checkpoint(path, algo="dqn")
+    payload = torch.load(path, weights_only=False)
+    payload["config"]["algorithm"]["hidden"] = [64, 64]  # the config no longer matches the weights
+    torch.save(payload, tmp_path / "mismatch.pt")
+    with pytest.raises(CheckpointError, match="shape mismatches"):
+        load_agent(tmp_path / "mismatch.pt")
+
+
+def test_resume_continues_from_the_checkpoint(tmp_path):
+    config = _config("dqn", ["steps=128", *OFF_POLICY, "tensorboard=true"])
+    train(config, tmp_path, progress=False)
+    assert list((tmp_path / "tb").glob("events.out.tfevents.*"))
+    first = load_checkpoint(tmp_path / "checkpoint.pt")
+    train({**config, "steps": 256}, tmp_path, resume=True, progress=False)
+    second = load_checkpoint(tmp_path / "checkpoint.pt")
+    assert first["step"] == 128 and second["step"] == 256
+    assert second["state"]["updates"] > first["state"]["updates"]
+    with pytest.raises(CheckpointError, match="config 'task' differs"):
+        train({**config, "steps": 512, "task": "waypoints/four_routes"}, tmp_path, resume=True, progress=False)
+
+
+def test_evaluate_reports_route_completion(tmp_path):
+    config = _config("sac", ["steps=64", "algorithm.learning_starts=1000"])
+    policy = train(config, tmp_path, progress=False)
+    result = evaluate(policy, episodes=2, task_kwargs={"time_limit": 2.0})
+    assert len(result["rows"]) == 2 and 0.0 <= result["summary"]["route_completion_mean"] <= 1.0
+    assert result["rows"][0]["end"] in ("time_limit", "lane_invasion", "off_road", "collision", "arrived")
+    markdown = to_markdown(result)
+    assert "route completion mean" in markdown and markdown.count("\n| ") >= 4
