@@ -159,11 +159,20 @@ _SUMMARY = _json_schema("mjdrive.EpisodeSummary", {"steps": "integer", "return":
 
 
 class _Channels:
-    """The channels of one recorder, in its own foxglove Context (so recorders never share a sink)."""
+    """The channels of one recorder, in its own foxglove Context (so recorders never share a sink).
+    Channels logged with encoded bytes are kept as their `BaseChannel` (`log(bytes, log_time)`): the
+    Python `Channel.log` wrapper costs as much again per call."""
 
     def __init__(self, context: foxglove.Context):
-        def protobuf(topic: str, schema: foxglove.Schema) -> foxglove.Channel:
-            return foxglove.Channel(topic, schema=schema, message_encoding="protobuf", context=context)
+        self._keep: list[foxglove.Channel] = []
+
+        def raw(topic: str, schema: foxglove.Schema | dict, encoding: str = "json"):
+            channel = foxglove.Channel(topic, schema=schema, message_encoding=encoding, context=context)
+            self._keep.append(channel)
+            return channel.base
+
+        def protobuf(topic: str, schema: foxglove.Schema):
+            return raw(topic, schema, "protobuf")
 
         ch = foxglove.channels
         self.tf = ch.FrameTransformsChannel("/tf", context=context)
@@ -173,12 +182,12 @@ class _Channels:
         self.users = protobuf("/scene/road_users", fm.SceneUpdate.get_schema())
         self.image = ch.CompressedImageChannel("/camera/front", context=context)
         self.calibration = ch.CameraCalibrationChannel("/camera/front/calibration", context=context)
-        self.state = foxglove.Channel("/ego/state", schema=_EGO_STATE, context=context)
-        self.action = foxglove.Channel("/action", schema=_ACTION, context=context)
-        self.reward = foxglove.Channel("/reward", schema=_REWARD, context=context)
+        self.state = raw("/ego/state", _EGO_STATE)
+        self.action = raw("/action", _ACTION)
+        self.reward = raw("/reward", _REWARD)
         self.physics = protobuf("/physics", foxglove.Schema(
             name=proto.PHYSICS_SCHEMA_NAME, encoding="protobuf", data=proto.physics_schema_data()))
-        self.episode = foxglove.Channel("/episode", schema=_SUMMARY, context=context)
+        self.episode = raw("/episode", _SUMMARY)
 
 
 def _ns(seconds: float) -> int:
@@ -300,7 +309,7 @@ class EpisodeRecorder:
         metadata["task_kwargs"], metadata["environment_kwargs"] = self._task_kwargs_json, self._environment_kwargs_json
         self._writer.write_metadata("mjdrive", metadata)
         ns = self._t0 + _ns(data.time)
-        self._channels.road.log(self._road_bytes(task.road_map), log_time=ns)
+        self._channels.road.log(self._road_bytes(task.road_map), ns)
         stamp = _timestamp(ns)
         self._channels.route.log(fm.SceneUpdate(entities=scene.route_entities(task, stamp)), log_time=ns)
         p = task.params
@@ -324,9 +333,9 @@ class EpisodeRecorder:
         self._return += reward
         ch = self._channels
         a0, a1, a2 = float(action[0]), float(action[1]), float(action[2])
-        ch.action.log(json.dumps({"throttle": a0, "steer": a1, "brake": a2}).encode(), log_time=action_ns)
+        ch.action.log(json.dumps({"throttle": a0, "steer": a1, "brake": a2}).encode(), action_ns)
         terms = {k: float(v) for k, v in task.reward_terms.items()}
-        ch.reward.log(json.dumps({"reward": reward, "return": self._return, "terms": terms}).encode(), log_time=ns)
+        ch.reward.log(json.dumps({"reward": reward, "return": self._return, "terms": terms}).encode(), ns)
         self._log_state(task, data, c, (a0, a1, a2), ns)
         if terminated or truncated:
             return self.end(terminated=terminated, truncated=truncated, task=task)
@@ -348,7 +357,7 @@ class EpisodeRecorder:
             "info": {str(k): _jsonable(v) for k, v in (info or {}).items()},
         }
         ns = self._t0 + _ns(self._prev_time)
-        self._channels.episode.log(json.dumps(summary).encode(), log_time=ns)
+        self._channels.episode.log(json.dumps(summary).encode(), ns)
         self._writer.write_metadata("summary", {k: json.dumps(v) for k, v in summary.items()})
         self._writer.close()
         self._writer = None
@@ -432,14 +441,14 @@ class EpisodeRecorder:
                  "jerk": jerk, "steering_angle": vehicle.steering_angle(data), "throttle": throttle,
                  "steer": steer, "brake": brake, "lane_offset": float(lane_offset),
                  "heading_error": float(heading_error)}
-        ch.state.log(json.dumps(state).encode(), log_time=ns)
-        ch.physics.log(c["physics"].encode(data), log_time=ns)
+        ch.state.log(json.dumps(state).encode(), ns)
+        ch.physics.log(c["physics"].encode(data), ns)
 
         users = task.road_users()
         if len(users.kinds) or self._users_shown:
             body = self._cubes.encode(users.poses, users.half_sizes, self._kind_colors(users.kinds))
             head = proto.entity_head(ns, scene.WORLD, "road_users")
-            ch.users.log(proto.scene_update_bytes(head, body), log_time=ns)
+            ch.users.log(proto.scene_update_bytes(head, body), ns)
             self._users_shown = len(users.kinds) > 0
         every = self.options.camera_every
         if every and c["camera"] >= 0 and self._steps % every == 0:
