@@ -85,9 +85,10 @@ def main() -> None:
     lines = [
         f"# Recording cost ({platform.processor() or platform.machine()}, mujoco {mujoco.__version__}, one thread)",
         "",
-        f"`python tools/bench_record.py {' '.join(f'--tasks {t}' for t in args.tasks[:1])} ...` "
-        f"({args.rounds} alternating rounds of {args.seconds:.0f} s env time per mode, medians; "
-        f"camera images {f'every {args.camera_every} steps' if args.camera_every else 'off'}).",
+        f"`python tools/bench_record.py --tasks {' '.join(args.tasks)} --rounds {args.rounds} "
+        f"--seconds {args.seconds:g} --camera-every {args.camera_every}` ({args.rounds} alternating rounds of "
+        f"{args.seconds:g} CPU-s of env time per mode, medians; camera images "
+        f"{f'every {args.camera_every} steps' if args.camera_every else 'off'}).",
         "",
         "| task | env [steps/CPU-s] | env + recording [steps/CPU-s] | recorded / plain | recording [ms/step] "
         "| recorded / plain (wall) | files |",
