@@ -286,8 +286,30 @@ def test_killed_writer_and_two_processes(tmp_path):
     assert "incomplete" in logs_table(tmp_path)  # the .part stays, listed as incomplete
 
 
+def test_roundabout_traffic_is_logged_and_replays(tmp_path):
+    """The real traffic of the densest roundabout, read through task.road_users(), replays bit for bit
+    (mocap poses of every road user included)."""
+    from mjdrive import suite
+
+    if "roundabout" not in suite.TASKS_BY_DOMAIN:
+        pytest.skip("no roundabout domain")
+    task = "d210" if "d210" in suite.TASKS_BY_DOMAIN["roundabout"] else suite.TASKS_BY_DOMAIN["roundabout"][-1]
+    env = RecordEpisodes(make_env("roundabout", task, time_limit=4.0), tmp_path)
+    _drive(env, 2, lambda observation: np.array([0.3, 0.0, 0.0], np.float32))
+    env.close()
+    path = env.recorder.paths[0]
+    episode = read_episode(path)
+    n_users = len(env.unwrapped.task.road_users().kinds)
+    updates = episode.decoded("/scene/road_users")
+    assert n_users > 0 and len(updates) == episode.summary["steps"] + 1
+    assert len(updates[-1].entities[0].cubes) == n_users
+    assert replay(path).match
+
+
 def test_layout_file_refers_to_logged_topics():
-    layout = json.loads((ROOT / "mjdrive" / "layouts" / "mjdrive.json").read_text())
+    from mjdrive.record import LAYOUT
+
+    layout = json.loads(LAYOUT.read_text())
     assert {"3D!mjdrive", "Image!mjdrive", "Plot!speed", "Plot!jerk", "Plot!reward"} <= set(layout["configById"])
     topics = PER_STEP | PER_ACTION | ONCE | {"/scene/road_users", "/camera/front", "/camera/front/calibration"}
     assert set(layout["configById"]["3D!mjdrive"]["topics"]) <= topics

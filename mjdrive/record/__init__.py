@@ -7,8 +7,12 @@
 See `recorder.py` for file names and topics, `reader.py` to read files back, `replay.py` to re-simulate.
 """
 
+from pathlib import Path
+
 from mjdrive.record.recorder import EnvSpec, EpisodeRecorder, RecordOptions, episode_filename
 from mjdrive.record.wrappers import RecordedEnvironment, RecordEpisodes, load
 
-__all__ = ["EnvSpec", "EpisodeRecorder", "RecordOptions", "RecordEpisodes", "RecordedEnvironment", "episode_filename",
-           "load"]
+LAYOUT = Path(__file__).resolve().parents[1] / "layouts" / "mjdrive.json"  # Foxglove layout for the logs
+
+__all__ = ["LAYOUT", "EnvSpec", "EpisodeRecorder", "RecordOptions", "RecordEpisodes", "RecordedEnvironment",
+           "episode_filename", "load"]
