@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from mjdrive.record.reader import EpisodeFileError, read_episode
-from mjdrive.record.recorder import decode_rng_state
+from mjdrive.record.recorder import decode_rng_state, package_versions
 
 STATE_FIELDS = ("time", "qpos", "qvel", "act", "mocap_pos", "mocap_quat")
 
@@ -27,6 +27,7 @@ class ReplayResult:
     max_abs_diff: dict[str, float] = field(default_factory=dict)
     video: Path | None = None
     damage: str | None = None  # what is wrong with an incomplete file
+    version_changes: list[str] = field(default_factory=list)  # packages whose version differs from the log's
 
     @property
     def match(self) -> bool:
@@ -42,6 +43,8 @@ class ReplayResult:
             text = f"match: {self.checked} steps, every state (time, qpos, qvel, act, mocap) and reward bit for bit"
         if not self.complete:
             text = f"{self.damage}\nchecked only those steps: {text}; the episode cannot be fully verified"
+        if self.version_changes:
+            text += f" (versions differ from the recording: {', '.join(self.version_changes)})"
         return f"replay {self.path}: {text}" + (f"; video {self.video}" if self.video else "")
 
 
@@ -86,6 +89,10 @@ def replay(path: str | Path, video: str | Path | None = None) -> ReplayResult:
         result = ReplayResult(Path(path), len(actions), 0, episode.complete, video=Path(video) if video else None,
                               damage=None if episode.complete else episode.describe_damage())
         result.max_abs_diff = {name: 0.0 for name in (*STATE_FIELDS, "reward")}
+        logged_versions = meta.get("versions") or {}
+        result.version_changes = [f"{name} {logged_versions[name]} -> {version}"
+                                  for name, version in package_versions().items()
+                                  if name in logged_versions and logged_versions[name] != version]
 
         def compare(k: int, reward: float | None) -> None:
             state = _physics_state(data)
