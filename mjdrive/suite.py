@@ -9,10 +9,10 @@ from __future__ import annotations
 import collections
 from typing import Any
 
-from mjdrive.tasks import waypoints
+from mjdrive.tasks import roundabout, waypoints
 from mjdrive.tasks.base import DrivingEnvironment
 
-_DOMAINS = {"waypoints": waypoints}
+_DOMAINS = {"roundabout": roundabout, "waypoints": waypoints}
 
 
 def _get_tasks(tag: str | None) -> tuple[tuple[str, str], ...]:

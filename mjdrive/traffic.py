@@ -101,7 +101,7 @@ class TrafficConfig:
     crosswalk_margin: float = 1.0  # [m] vehicles stop this far before a crosswalk / a pedestrian's band
     kerb: float = 0.9  # [m] where pedestrians wait, beyond the end of the crosswalk
     pedestrian_wait: tuple[float, float] = (2.0, 10.0)  # [s] wait at the kerb before looking for a gap
-    decision_period: float = 0.2  # [s]
+    decision_period: float = 0.4  # [s] behaviour updates (about a driver's reaction time)
     substep: float = 0.02  # [s] pose resolution (mocap written at this period)
 
 
@@ -135,13 +135,16 @@ def slots(kinds: Sequence[str]) -> list[TrafficSlot]:
 
 def _smoothstep(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """3x^2 - 2x^3 on [0, 1] and its derivative."""
-    x = np.clip(x, 0.0, 1.0)
+    x = np.minimum(np.maximum(x, 0.0), 1.0)
     return x * x * (3.0 - 2.0 * x), 6.0 * x * (1.0 - x)
 
 
 def _yaw_quat(yaw: np.ndarray) -> np.ndarray:
+    """Quaternions (..., 4) (w, x, y, z) of rotations by yaw [rad] about z."""
     q = np.zeros(yaw.shape + (4,))
-    q[..., 0], q[..., 3] = np.cos(0.5 * yaw), np.sin(0.5 * yaw)
+    half = 0.5 * yaw
+    np.cos(half, out=q[..., 0])
+    np.sin(half, out=q[..., 3])
     return q
 
 
@@ -233,6 +236,11 @@ class Traffic:
         self.stats = {"spawned": 0, "despawned": 0, "lane_changes": 0}
         self.ego: EgoState | None = None
         self._obstacle_cache = None
+        self._ctx_s, self._ctx_v, self._ctx_len = np.zeros(self.nv + 1), np.zeros(self.nv + 1), np.zeros(self.nv + 1)
+        self._b_agents = np.append(self.b_comf, 3.0)  # [m/s^2] comfortable deceleration, the ego last
+        self._row_base = np.arange(self.nv) * PATH
+        self._slot_row = np.full(self.n, -1, dtype=np.int64)  # vehicle row of each slot (-1: pedestrian)
+        self._slot_row[self.vehicle_slots] = np.arange(self.nv)
         self.rng = np.random.default_rng(0)
         self._reset_state()
 
@@ -259,6 +267,7 @@ class Traffic:
         self.lc_shift = np.zeros(nv)  # [m] lateral offset left to remove by the current lane change
         self.lc_dist = np.full(nv, 1e9)  # [m] distance driven since the lane change began
         self.accel = np.zeros(nv)  # [m/s^2] of the current decision period
+        self.lead_gap = np.zeros(nv)  # [m] to the nearest obstacle ahead at the last decision
         self.ped_u = np.zeros(npd)  # [m] position along the crosswalk
         self.ped_dir = np.ones(npd)  # +1 / -1: walking direction along the crosswalk
         self.ped_walking = np.zeros(npd, dtype=bool)
@@ -442,23 +451,31 @@ class Traffic:
 
     def _context(self) -> dict:
         """Lane-graph rows of the vehicles and the ego (last row) shared by one decision: current lane,
-        s [m], speed [m/s], length [m], path (A, PATH) and the distance to the start of each path lane."""
-        ego = self.ego
-        path = np.full((self.nv + 1, PATH), -1, dtype=np.int64)
-        path[:-1] = np.where(self.active[:, None], self.path, -1)
-        s = np.append(self.s, 0.0)
-        v = np.append(self.v, 0.0)
-        length = np.append(self.length, 0.0)
+        s [m], speed [m/s], length [m], path (A, PATH), and `offset` (A, L): the distance [m] from the start
+        of each agent's current lane to the start of every lane on its path (inf for lanes off its path),
+        so that a point (lane, s) lies offset[:, lane] + s ahead of the start of each agent's lane."""
+        ego, nv = self.ego, self.nv
+        path = np.full((nv + 1, PATH), -1, dtype=np.int64)
+        path[:nv] = self.path
+        path[:nv][~self.active] = -1
+        s, v, length = self._ctx_s, self._ctx_v, self._ctx_len
+        s[:nv], v[:nv], length[:nv] = self.s, self.v, self.length
+        s[nv] = v[nv] = length[nv] = 0.0
         if ego is not None:
-            v[-1], length[-1] = max(ego.speed, 0.0), ego.length
+            v[nv], length[nv] = max(ego.speed, 0.0), ego.length
             if ego.path is not None and len(ego.path) and ego.path[0] >= 0:
                 k = min(len(ego.path), PATH)
-                path[-1, :k] = ego.path[:k]
-                s[-1] = ego.s
-        plen = self._path_lengths(path)
-        start = np.zeros((len(path), PATH))
+                path[nv, :k] = ego.path[:k]
+                s[nv] = ego.s
+        plen = np.where(path >= 0, self.map.length[path], np.inf)
+        start = np.zeros((nv + 1, PATH))
         np.cumsum(plen[:, :-1], axis=1, out=start[:, 1:])
-        return {"lane": path[:, 0], "s": s, "v": v, "length": length, "path": path, "start": start}
+        offset = np.full((nv + 1, self.map.n_lanes + 1), np.inf)  # column -1 collects the -1 lanes
+        rows = np.repeat(np.arange(nv + 1), PATH)
+        offset[rows, path[:, ::-1].ravel()] = start[:, ::-1].ravel()  # reversed: the nearest occurrence wins
+        offset[:, -1] = np.inf
+        return {"lane": path[:, 0], "s": s.copy(), "v": v.copy(), "length": length.copy(), "path": path,
+                "start": start, "offset": offset}
 
     def _spawn(self) -> bool:
         """Inactive vehicles re-enter at a random clear source (at most one per source per decision)."""
@@ -490,7 +507,7 @@ class Traffic:
         rate = np.array(cfg.lane_change_rate) * cfg.decision_period
         draw = self.rng.random((self.nv, 2)) < rate[None]
         ok = draw & (targets >= 0) & (self.active & (self.lc_dist >= cfg.lane_change_length)
-                                      & (self.s > 1.0))[:, None]
+                                      & (self.s > 1.0) & (self.lead_gap > cfg.lane_change_length))[:, None]
         if not ok.any():
             return
         cand = np.argwhere(ok)
@@ -503,12 +520,11 @@ class Traffic:
                                                   < cfg.lane_change_length):
             return
         ctx = self._context()
-        s, v, length, path, start = ctx["s"], ctx["v"], ctx["length"], ctx["path"], ctx["start"]
+        s, v, length, offset = ctx["s"], ctx["v"], ctx["length"], ctx["offset"]
         # Every other vehicle's coordinate along the target lane (via its own path), if it passes there,
         # or beyond its end along the lane that follows it (on it or coming to it from another lane).
-        hit, hit_after = path == target, path == after
-        coord = np.where(hit_after.any(1), m.length[target] + s - np.where(hit_after, start, 0).sum(1), np.nan)
-        coord = np.where(hit.any(1), s - np.where(hit, start, 0).sum(1), coord)
+        coord = np.where(np.isfinite(offset[:, after]), m.length[target] + s - offset[:, after], np.nan)
+        coord = np.where(np.isfinite(offset[:, target]), s - offset[:, target], coord)
         coord[row] = np.nan
         gap_ahead = coord - s_new - (length + self.length[row]) / 2
         gap_behind = s_new - coord - (length + self.length[row]) / 2
@@ -550,12 +566,10 @@ class Traffic:
         if not len(m.cross_lane):
             return out
         s, v, length = ctx["s"], ctx["v"], ctx["length"]
-        hit = ctx["path"][:, None, :] == m.cross_lane[None, :, None]  # (A, K, PATH)
-        base = np.where(hit, ctx["start"][:, None, :], np.inf).min(axis=2)  # (A, K)
+        base = ctx["offset"][:, m.cross_lane]  # (A, K)
         front = base + m.cross_s[None, :, 0] - (s + length / 2)[:, None]  # bumper to the crossing [m]
         rear_past = base + m.cross_s[None, :, 1] - (s - length / 2)[:, None]  # > 0: rear not yet past it
-        b = np.append(self.b_comf, 3.0)
-        stopping = v * v / (2 * b) + v + 1.0
+        stopping = v * v / (2 * self._b_agents) + v + 1.0
         threat = (rear_past > 0) & (front < stopping[:, None])  # inf base: never
         np.logical_or.at(out, m.cross_cw, threat.any(axis=0))
         return out
@@ -565,7 +579,7 @@ class Traffic:
         """The vehicles as followers for `_accelerations`."""
         nv = self.nv
         vs = self.vehicle_slots
-        return {"rows": np.arange(nv), "path": ctx["path"][:nv], "start": ctx["start"][:nv], "s": self.s,
+        return {"rows": np.arange(nv), "path": ctx["path"][:nv], "offset": ctx["offset"][:nv], "s": self.s,
                 "v": self.v, "v0": self.v0, "length": self.length, "width": self.width, "a": self.a_max,
                 "b": self.b_comf, "T": self.headway, "xy": self._current_pos[vs, :2],
                 "yaw": self._current_yaw[vs], "accept_gap": self.config.accept_gap}
@@ -573,15 +587,14 @@ class Traffic:
     def _accelerations(self, f: dict, ctx: dict) -> np.ndarray:
         """IDM accelerations [m/s^2] of followers `f` (dict of arrays, see `_follower_table`)."""
         m, cfg = self.map, self.config
-        path, start, s, v = f["path"], f["start"], f["s"], f["v"]
+        path, offset, s, v = f["path"], f["offset"], f["s"], f["v"]
         rows, length = f["rows"], f["length"]
         front = s + length / 2
         gaps, leads, s0s = [], [], []
 
         # 1. Leaders along the planned path (vehicles and the ego).
         lane_a = ctx["lane"]
-        match = (path[:, None, :] == lane_a[None, :, None]) & (lane_a >= 0)[None, :, None]  # (F, A, PATH)
-        pos = np.where(match, start[:, None, :], np.inf).min(axis=2) + ctx["s"][None]  # (F, A)
+        pos = offset[:, lane_a] + ctx["s"][None]  # (F, A) [m] from the start of the follower's lane
         a_idx = np.arange(len(lane_a))
         ahead = (pos > s[:, None]) | ((pos == s[:, None]) & (a_idx[None] > rows[:, None]))
         ahead &= a_idx[None] != rows[:, None]
@@ -610,8 +623,7 @@ class Traffic:
         # 3. Crosswalk stop lines where a pedestrian walks in the lane's band, or where the queue ahead
         #    leaves no room beyond the crosswalk (keep it clear).
         if len(m.cross_lane):
-            hit = path[:, None, :] == m.cross_lane[None, :, None]
-            base = np.where(hit, start[:, None, :], np.inf).min(axis=2)  # (F, K)
+            base = offset[:, m.cross_lane]  # (F, K)
             stop = base + (m.cross_s[:, 0] - cfg.crosswalk_margin)[None] - front[:, None]
             beyond = base + (m.cross_s[:, 1] + cfg.crosswalk_margin)[None] - front[:, None]
             path_gap = gaps[0].min(axis=1)
@@ -627,15 +639,14 @@ class Traffic:
         if len(m.yield_lane):
             conflict = self._merge_conflicts(ctx, f["accept_gap"])  # (Y,)
             if conflict.any():
-                lanes = np.where(conflict, m.yield_lane, -2)
-                hit = path[:, None, :] == lanes[None, :, None]  # (F, Y, PATH)
-                base = np.where(hit, start[:, None, :], np.inf).min(axis=2)
+                base = np.where(conflict[None], offset[:, m.yield_lane], np.inf)  # (F, Y)
                 stop = base + m.yield_stop[None] - front[:, None]
                 gaps.append(np.where(stop > -0.3, stop, np.inf))
                 leads.append(np.zeros_like(stop))
                 s0s.append(cfg.stop_gap)
 
         gap = np.concatenate(gaps, axis=1)
+        self.lead_gap = gap.min(axis=1) if len(rows) == self.nv else self.lead_gap
         lead = np.concatenate(leads, axis=1)
         s0 = np.concatenate([np.full(g.shape[1], x) for g, x in zip(gaps, s0s, strict=True)])
         dv = v[:, None] - lead
@@ -650,7 +661,7 @@ class Traffic:
                                            + 2 * m.anticipation * np.maximum(to_end, 0)), np.inf)
         v0 = np.minimum(np.minimum(f["v0"], m.speed_limit[lane0]), np.minimum(vcurve, vnext))
         acc = f["a"] * (1.0 - (v / np.maximum(v0, 0.1)) ** 4 - interaction)
-        return np.clip(acc, -cfg.max_decel, f["a"])
+        return np.maximum(np.minimum(acc, f["a"]), -cfg.max_decel)
 
     def _obstacles(self):
         """Everything the corridor check sees: centre xy (O,2), yaw, speed, half length, half width, and the
@@ -658,18 +669,17 @@ class Traffic:
         if self._obstacle_cache is not None:
             return self._obstacle_cache
         ego = self.ego
-        rows = np.concatenate([self.vehicle_slots[self.active], self.pedestrian_slots])
-        xy = self._current_pos[rows, :2]
-        yaw = self._current_yaw[rows]
-        speed = self._current_speed[rows]
-        hl, hw = self.half_size[rows, 0], self.half_size[rows, 1]
-        idx = np.concatenate([np.flatnonzero(self.active), np.full(self.np_, -1)])
+        slots = np.concatenate([self.vehicle_slots[self.active], self.pedestrian_slots])
+        n = len(slots) + (ego is not None)
+        xy, yaw, speed = np.empty((n, 2)), np.empty(n), np.empty(n)
+        hl, hw, idx = np.empty(n), np.empty(n), np.empty(n, dtype=np.int64)
+        k = len(slots)
+        xy[:k], yaw[:k], speed[:k] = self._current_pos[slots, :2], self._current_yaw[slots], self._current_speed[slots]
+        hl[:k], hw[:k] = self.half_size[slots, 0], self.half_size[slots, 1]
+        idx[:k] = self._slot_row[slots]
         if ego is not None:
-            xy = np.vstack([xy, [[ego.x, ego.y]]])
-            yaw = np.append(yaw, ego.yaw)
-            speed = np.append(speed, max(ego.speed, 0.0))
-            hl, hw = np.append(hl, ego.length / 2), np.append(hw, ego.width / 2)
-            idx = np.append(idx, self.nv)
+            xy[k], yaw[k], speed[k] = (ego.x, ego.y), ego.yaw, max(ego.speed, 0.0)
+            hl[k], hw[k], idx[k] = ego.length / 2, ego.width / 2, self.nv
         self._obstacle_cache = (xy, yaw, speed, hl, hw, idx)
         return self._obstacle_cache
 
@@ -687,13 +697,12 @@ class Traffic:
         """(Y,): whether a priority agent (vehicle or ego) reaches merge y's point within `accept_gap` [s] or
         is nearer than merge_clearance, or still occupies the start of the merged lane."""
         m, cfg = self.map, self.config
-        path, start, s, v, length = ctx["path"], ctx["start"], ctx["s"], ctx["v"], ctx["length"]
+        offset, s, v, length = ctx["offset"], ctx["s"], ctx["v"], ctx["length"]
         merge = m.yield_merge
         # Agents approaching the merge point, not through this yielding lane (not queued behind it).
-        hit = path[:, 1:, None] == merge[None, None]  # (A, PATH-1, Y)
-        via = (path[:, :, None] == m.yield_lane[None, None]).any(axis=1)  # (A, Y)
-        dist = np.where(hit, start[:, 1:, None], np.inf).min(axis=1) - (s + length / 2)[:, None]  # (A, Y)
-        dist = np.where(via, np.inf, dist)
+        to_merge = offset[:, merge]  # (A, Y) 0 for agents already on the merged lane
+        via = np.isfinite(offset[:, m.yield_lane])
+        dist = np.where(via | (to_merge <= 0), np.inf, to_merge - (s + length / 2)[:, None])  # (A, Y)
         soon = dist - cfg.merge_clearance < v[:, None] * accept_gap
         # Agents already on the merged lane whose rear is still near its start.
         on_start = (ctx["lane"][:, None] == merge[None]) & ((s - length / 2)[:, None] < cfg.merge_clearance + 3.0)
@@ -719,30 +728,40 @@ class Traffic:
     def _vehicle_poses(self, ds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Poses (S, NV, 3), yaw (S, NV) of the vehicles after moving ds (S, NV) [m] along their paths."""
         m, nv = self.map, self.nv
-        plen = self._path_lengths(self.path)
+        path = self.path
+        before = np.zeros((nv, PATH))
+        np.cumsum(np.where(path[:, :-1] >= 0, m.length[path[:, :-1]], np.inf), axis=1, out=before[:, 1:])
         p = self.s[None] + ds
-        k = (p[..., None] >= np.cumsum(plen[:, :-1], axis=1)[None]).sum(-1)  # (S, NV) index into the path
-        k = np.minimum(k, np.maximum((self.path >= 0).sum(1) - 1, 0)[None])  # stay on a dead end's last lane
-        flat = np.arange(nv) * PATH + k
-        lane = np.maximum(self.path.ravel()[flat], 0)
-        before = np.concatenate([np.zeros((nv, 1)), np.cumsum(plen[:, :-1], axis=1)], axis=1).ravel()[flat]
-        x, y, h = m.lookup(lane, p - before)
-        sm, dsm = _smoothstep((self.lc_dist[None] + ds) / self.config.lane_change_length)
-        d = self.d_pref[None] + self.lc_shift[None] * (1.0 - sm)
-        yaw = h + np.arctan(-self.lc_shift[None] * dsm / self.config.lane_change_length)
-        sin, cos = np.sin(h), np.cos(h)
-        pos = np.stack([x - sin * d, y + cos * d, np.zeros_like(x)], axis=-1)
+        k = (p[..., None] >= before[None, :, 1:]).sum(-1)  # (S, NV) index into the path
+        k = np.minimum(k, self._last_path_index()[None])  # stay on a dead end's last lane
+        flat = self._row_base + k
+        lane = np.maximum(path.ravel()[flat], 0)
+        x, y, h = m.lookup(lane, p - before.ravel()[flat])
+        if np.any(self.lc_dist < self.config.lane_change_length):  # lane changes under way
+            sm, dsm = _smoothstep((self.lc_dist[None] + ds) / self.config.lane_change_length)
+            d = self.d_pref[None] + self.lc_shift[None] * (1.0 - sm)
+            yaw = h + np.arctan(-self.lc_shift[None] * dsm / self.config.lane_change_length)
+        else:
+            d, yaw = self.d_pref[None], h
+        pos = np.zeros(x.shape + (3,))
+        pos[..., 0] = x - np.sin(h) * d
+        pos[..., 1] = y + np.cos(h) * d
         if not self.active.all():
             hidden = ~self.active
             pos[:, hidden] = self._hidden[self.vehicle_slots[hidden]][None]
             yaw[:, hidden] = 0.0
         return pos, yaw
 
+    def _last_path_index(self) -> np.ndarray:
+        """(NV,) index of the last lane on each path (a dead end's lane when the path ends early)."""
+        return np.maximum((self.path >= 0).sum(1) - 1, 0)
+
     def _pedestrian_poses(self, t: np.ndarray):
         """Poses (S, P, 3), yaw (S, P) and speed (S, P) of the pedestrians at times t (S, 1) [s] ahead."""
         end = self._ped_end[None]
         walking = self.ped_walking[None]
-        u = np.clip(self.ped_u[None] + (self.ped_dir * self.ped_speed * self.ped_walking)[None] * t, -end, end)
+        u = np.minimum(np.maximum(self.ped_u[None] + (self.ped_dir * self.ped_speed * self.ped_walking)[None] * t,
+                                  -end), end)
         xy = self._ped_centre[None] + u[..., None] * self._ped_along[None] + self._ped_side[None]
         pos = np.concatenate([xy, np.zeros(xy.shape[:-1] + (1,))], axis=-1)
         yaw = np.broadcast_to(self._ped_heading + np.where(self.ped_dir > 0, 0.0, np.pi), u.shape)
@@ -797,7 +816,7 @@ class Traffic:
         self.ego = ego
         self._obstacle_cache = None
         ctx = self._context()
-        f = {"rows": np.array([self.nv]), "path": ctx["path"][-1:], "start": ctx["start"][-1:],
+        f = {"rows": np.array([self.nv]), "path": ctx["path"][-1:], "offset": ctx["offset"][-1:],
              "s": np.array([ego.s]), "v": np.array([max(ego.speed, 0.0)]), "v0": np.array([desired_speed]),
              "length": np.array([ego.length]), "width": np.array([ego.width]), "a": np.array([accel]),
              "b": np.array([decel]), "T": np.array([headway]), "xy": np.array([[ego.x, ego.y]]),

@@ -79,9 +79,9 @@ class TrafficMap:
         self._k0, self._dk = k[:-1], np.diff(k)
 
     def _segment(self, lane: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        gq = self.base[lane] + np.clip(s, 0.0, self.length[lane])
+        gq = self.base[lane] + np.minimum(np.maximum(s, 0.0), self.length[lane])
         i = np.searchsorted(self.g, gq, side="right") - 1
-        i = np.clip(i, self.first[lane], self.last_segment[lane])
+        i = np.minimum(np.maximum(i, self.first[lane]), self.last_segment[lane])
         return i, (gq - self.g[i]) * self._inv[i]
 
     def lookup(self, lane: np.ndarray, s: np.ndarray, curvature: bool = False):

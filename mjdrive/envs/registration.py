@@ -12,6 +12,10 @@ GYM_IDS: dict[str, tuple[str, str, dict]] = {
     "mjdrive/Waypoints-Straight-Camera-v0": ("waypoints", "straight", {"observation": "camera"}),
     "mjdrive/Waypoints-FourRoutes-Camera-v0": ("waypoints", "four_routes", {"observation": "camera"}),
     "mjdrive/Waypoints-Random-Camera-v0": ("waypoints", "random_routes", {"observation": "camera"}),
+    **{f"mjdrive/Roundabout-D{level}-v0": ("roundabout", f"d{level}", {"observation": "features"})
+       for level in (120, 140, 160, 210)},
+    **{f"mjdrive/Roundabout-D{level}-Camera-v0": ("roundabout", f"d{level}", {"observation": "camera"})
+       for level in (120, 140, 160, 210)},
 }
 
 

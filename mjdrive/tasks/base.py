@@ -3,6 +3,7 @@ Environment that turns physics blow-ups into an ended episode instead of an exce
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -36,7 +37,31 @@ NO_ROAD_USERS = RoadUsers((), np.zeros((0, 3)), np.zeros((0, 3)))
 
 
 class Physics(dm_mujoco.Physics):
-    """dm_control Physics; `raw_model`/`raw_data` are the mujoco structs used on the hot path."""
+    """dm_control Physics; `raw_model`/`raw_data` are the mujoco structs used on the hot path.
+
+    A task may register `substep_callback(physics, dt)`: `step(n)` then runs the physics in chunks of
+    `substep_interval` steps and calls it after each chunk with the chunk's duration dt [s] (e.g. to move
+    kinematic traffic and write its mocap poses at a finer period than the control period).
+    """
+
+    substep_callback: Callable[[Physics, float], None] | None = None
+    substep_interval: int = 10  # physics steps per callback
+
+    def step(self, nstep: int = 1) -> None:
+        callback = self.substep_callback
+        if callback is None:
+            super().step(nstep)
+            return
+        model, data = self.model.ptr, self.data.ptr
+        chunk = max(1, int(self.substep_interval))
+        dt = float(model.opt.timestep)
+        with self.check_invalid_state():
+            done = 0
+            while done < nstep:
+                n = min(chunk, nstep - done)
+                mujoco.mj_step(model, data, n)
+                done += n
+                callback(self, n * dt)
 
     @property
     def raw_model(self) -> mujoco.MjModel:

@@ -1,0 +1,368 @@
+"""Roundabout entry in dense mixed traffic (study 000, Ben Elallid et al. 2024): from the yield line of
+one approach, enter a two-lane roundabout and leave it at a chosen exit without colliding.
+
+Map: `roads.roundabout` (two-lane ring of `radius` 14 m driven counter-clockwise, four two-way arms,
+a crosswalk on every arm `crosswalk_offset` 6 m from the ring). The ego starts at rest at the yield line of
+a random approach; its destination is `destination_offset` 10 m into a random exit (first, second or
+third after its entry: right turn, straight on, left turn; paths of about 38, 62 and 87 m, mean ~62 m;
+`exits=(1,)` keeps the study's short ~32-38 m paths). Traffic (`mjdrive.traffic`) runs around it.
+
+Density levels, named after the study's 120/140/160/210 vehicles in the whole CARLA town (Table 3); here
+the road users around the roundabout (each slot is a MuJoCo mocap box):
+
+| task | cars | motorcycles | bicycles | pedestrians | road users |
+| --- | ---: | ---: | ---: | ---: | ---: |
+| d120 | 12 | 3 | 3 | 4 | 22 |
+| d140 | 14 | 3 | 3 | 5 | 25 |
+| d160 | 17 | 4 | 4 | 6 | 31 |
+| d210 | 22 | 5 | 5 | 8 | 40 |
+
+Observations (`observation=`):
+  "camera":   image (4, 84, 84) uint8, the last 4 front-camera frames in gray (oldest first, §4.2), and
+              destination (2,) [m] = [x_dest - x_av, y_dest - y_av] (world frame, as in the study).
+  "features": ego (6,) = speed [m/s], yaw rate [rad/s], heading error to the route [rad], lateral offset
+              from the route [m], cos(yaw), sin(yaw); destination (2,) [m] as above; road_users (K, 13) for
+              the K nearest road users: present, dx, dy, dvx, dvy [m, m/s] in the ego frame, cos and sin of
+              the relative yaw, length, width [m], one-hot kind (car, motorcycle, bicycle, pedestrian).
+Reward, eq. (12): -100 on collision; d_pre - d_cu (remaining route distance [m] to the destination, one
+step to the next); v/10 with v in km/h clipped to [0, 30] (at most 3); -0.05 x off-road share of the
+footprint; -0.05 x share of the footprint in another lane than the route; +100 on arrival.
+`task.reward_terms` holds the terms of the last step. Episodes end on collision or arrival (terminated)
+or after 1100 steps (truncated). Control at 5 Hz (§5.1).
+"""
+
+from __future__ import annotations
+
+import collections
+import functools
+
+import numpy as np
+from dm_control.mujoco import wrapper
+from dm_control.utils import containers
+from dm_env import specs
+
+from mjdrive import roads, world
+from mjdrive.roads import Lane, RoadMap
+from mjdrive.sensors import wrap_angle
+from mjdrive.tasks.base import DrivingEnvironment, DrivingTask, Physics, RoadUsers
+from mjdrive.traffic import KIND_NAMES, EgoState, Traffic, TrafficConfig, counts_to_kinds, slots
+
+SUITE = containers.TaggedTasks()
+
+CONTROL_TIMESTEP = 0.2  # [s] 5 Hz (§5.1)
+MAX_STEPS = 1100  # (§5.1)
+SPEED_LIMIT_KMH = 30.0  # [km/h] the study's limit: v/10 is at most 3
+OBSERVATIONS = ("features", "camera")
+ROAD_USER_COLUMNS = 9 + len(KIND_NAMES)
+DENSITIES: dict[str, dict[str, int]] = {
+    "d120": {"car": 12, "motorcycle": 3, "bicycle": 3, "pedestrian": 4},
+    "d140": {"car": 14, "motorcycle": 3, "bicycle": 3, "pedestrian": 5},
+    "d160": {"car": 17, "motorcycle": 4, "bicycle": 4, "pedestrian": 6},
+    "d210": {"car": 22, "motorcycle": 5, "bicycle": 5, "pedestrian": 8},
+}
+
+
+class RouteFrame:
+    """Route coordinates (s along, d to the left) [m] of points, searching only the route segments near the
+    ego's last position (the route is a polyline of ~0.5 m segments; a full search on `reset`)."""
+
+    WINDOW = (-8, 24)  # segments searched around the last one [-]
+
+    def __init__(self, polyline: np.ndarray):
+        self.p0 = polyline[:-1]
+        delta = np.diff(polyline, axis=0)
+        self.length = np.hypot(delta[:, 0], delta[:, 1])
+        self.tangent = delta / self.length[:, None]
+        self.s0 = np.concatenate([[0.0], np.cumsum(self.length)[:-1]])
+        self.segment = 0
+
+    def __call__(self, points: np.ndarray, full: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """(s, d) arrays (K,) for points (K,2); the first point moves the search window."""
+        n = len(self.p0)
+        lo, hi = (0, n) if full else (max(self.segment + self.WINDOW[0], 0), min(self.segment + self.WINDOW[1], n))
+        rel = points[:, None, :] - self.p0[None, lo:hi]  # (K, W, 2)
+        tan = self.tangent[lo:hi]
+        along = rel[..., 0] * tan[:, 0] + rel[..., 1] * tan[:, 1]
+        clamped = np.minimum(np.maximum(along, 0.0), self.length[lo:hi])
+        side = tan[:, 0] * rel[..., 1] - tan[:, 1] * rel[..., 0]
+        j = np.argmin((along - clamped) ** 2 + side**2, axis=1)
+        rows = np.arange(len(points))
+        self.segment = lo + int(j[0])
+        return self.s0[lo + j] + clamped[rows, j], side[rows, j]
+
+
+class RoundaboutTask(DrivingTask):
+    """Enter the roundabout from a yield line and reach the destination on a chosen exit (eq. 12 reward)."""
+
+    def __init__(
+        self,
+        model,
+        road_map: RoadMap,
+        kinds: list[str],
+        observation: str = "features",
+        vehicle: str = "sedan",
+        exits: tuple[int, ...] = (1, 2, 3),
+        entries: tuple[int, ...] | None = None,
+        destination_offset: float = 10.0,  # [m] into the exit arm
+        start_offset: float = 0.5,  # [m] from the ego's centre to the end of its approach lane
+        warmup: float = 5.0,  # [s] of traffic before the episode starts
+        neighbours: int = 8,  # K, road users in the "features" observation
+        image_size: int = 84,  # [px]
+        frames: int = 4,
+        speed_reward: bool = True,  # R_t3 (the paper's sum leaves it out; the spec keeps it)
+        traffic_config: TrafficConfig | None = None,
+        random=None,
+    ):
+        if observation not in OBSERVATIONS:
+            raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
+        super().__init__(model, road_map, vehicle, random)
+        self.observation = observation
+        self.routes = roads.roundabout_routes(road_map)
+        self.arms = sorted({a for a, _ in self.routes})
+        n_arms = len(self.arms)
+        if not exits or any(not 1 <= e <= n_arms for e in exits):
+            raise ValueError(f"exits must be in 1..{n_arms} (1 = first exit after the entry), got {exits}")
+        self.exits = tuple(exits)
+        self.entries = tuple(self.arms if entries is None else entries)
+        self.destination_offset = destination_offset
+        self.start_offset = start_offset
+        self.warmup = warmup
+        self.neighbours = neighbours
+        self.image_size = image_size
+        self.frames = frames
+        self.speed_reward = speed_reward
+        self.traffic = Traffic(road_map, kinds, traffic_config)
+        self.traffic.bind(model)
+        self._kind_onehot = np.eye(len(KIND_NAMES), dtype=np.float32)[self.traffic.kind_id]
+        self._lengths = 2 * self.traffic.half_size[:, :2]
+        self.route: list[int] = []
+        self.route_lane: Lane | None = None
+
+    # --- episode ----------------------------------------------------------------------------------
+    def initialize_episode(self, physics: Physics) -> None:
+        rm = self.road_map
+        entry = self.entries[self.random.randint(len(self.entries))]
+        exit_arm = (entry + self.exits[self.random.randint(len(self.exits))]) % len(self.arms)
+        self.entry_arm, self.exit_arm = entry, exit_arm
+        self.route = list(self.routes[(entry, exit_arm)])
+        self.route_lane = Lane(rm.route_polyline(self.route), name="route")
+        self.route_frame = RouteFrame(self.route_lane.centre)
+        lengths = np.array([rm.lanes[i].length for i in self.route])
+        self._route_starts = np.concatenate([[0.0], np.cumsum(lengths)[:-1]])  # [m] along the route
+        self._route_width = rm.lanes[self.route[0]].width
+        start_s = lengths[0] - self.start_offset
+        self.destination_s = float(self._route_starts[-1] + self.destination_offset)  # [m] along the route
+        self.destination = self.route_lane.position(self.destination_s)
+        x, y = self.route_lane.position(start_s)
+        self.vehicle.reset(physics.raw_data, x, y, float(self.route_lane.heading(start_s)))
+        self.route_frame(np.array([[x, y]]), full=True)
+        self._frame_time = -1.0
+        physics.substep_callback = self._substep
+        physics.substep_interval = max(1, int(round(self.traffic.config.substep / physics.timestep())))
+        self._ego_fn = functools.partial(self.ego_state, physics)
+        rng = np.random.default_rng(self.random.randint(2**31))
+        self.traffic.reset(rng, self.ego_state(physics), warmup=self.warmup)
+        self.traffic.write(physics.raw_data)
+        self.reset_safety_sensors(physics)
+        self._update_ego(physics)
+        self.remaining = self._remaining()
+        self._frames: collections.deque | None = None
+        self.info = {
+            "success": False, "collision": False, "off_road": False, "physics_error": None,
+            "elapsed_time": 0.0, "average_speed": 0.0, "distance": 0.0, "steps": 0, "episode_reward": 0.0,
+            "remaining_distance": self.remaining, "route_length": self.destination_s - start_s,
+            "entry": entry, "exit": exit_arm,
+        }
+        self._step_reward = 0.0
+        self.reward_terms = {}
+
+    def _substep(self, physics: Physics, dt: float) -> None:
+        """Physics.substep_callback: move the traffic and write its mocap poses."""
+        self.traffic.advance(dt, self._ego_fn, physics.raw_data)
+
+    def ego_state(self, physics: Physics) -> EgoState:
+        """The ego for traffic (and the scripted drivers): pose, speed, and its place on the route."""
+        x, y, yaw = self.vehicle.pose(physics.raw_data)
+        speed = self.vehicle.speed(physics.raw_data)
+        if self._frame_time == physics.data.time:  # after_step has just placed the ego on the route
+            s, d = self.route_s, self.lane_offset
+        else:
+            s, d = self.route_frame(np.array([[x, y]]))
+            s, d = float(s[0]), float(d[0])
+        path, s_lane = None, 0.0
+        if abs(d) <= self._route_width:
+            k = int(np.searchsorted(self._route_starts, s, side="right") - 1)
+            path = np.array(self.route[k:], dtype=np.int64)
+            s_lane = float(s - self._route_starts[k])
+        return EgoState(x, y, yaw, speed, self.params.length, self.params.width, path, s_lane)
+
+    def _update_ego(self, physics: Physics) -> None:
+        data = physics.raw_data
+        x, y, yaw = self.vehicle.pose(data)
+        self.xy, self.yaw = np.array([x, y]), yaw
+        self.speed = float(self.vehicle.speed(data))  # [m/s]
+        self.yaw_rate = float(self.vehicle.yaw_rate(data))  # [rad/s]
+        s, d = self.route_frame(self.xy[None])
+        self.route_s, self.lane_offset = float(s[0]), float(d[0])  # [m]
+        self._frame_time = physics.data.time
+        tangent = self.route_frame.tangent[self.route_frame.segment]
+        self.heading_error = float(wrap_angle(yaw - np.arctan2(tangent[1], tangent[0])))  # [rad]
+
+    def _remaining(self) -> float:
+        """Route distance [m] from the ego to the destination."""
+        return max(self.destination_s - self.route_s, 0.0)
+
+    def after_step(self, physics: Physics) -> None:
+        previous_xy = self.xy
+        self._update_ego(physics)
+        info = self.info
+        collision = self.collision_sensor(physics.raw_data)
+        corners = self.ego_corners(physics)
+        _, d = self.route_frame(np.vstack([self.xy[None], corners]))
+        in_route = np.abs(d[1:]) <= self._route_width / 2  # on the route's lanes: on the road for sure
+        on_road = in_route if in_route.all() else self.road_map.on_road(corners)
+        off_share = float(np.mean(~on_road))
+        other_share = float(np.mean(on_road & ~in_route))
+        remaining = self._remaining()
+        arrived = self.route_s >= self.destination_s - 0.5 and abs(self.lane_offset) <= self._route_width / 2
+        info["collision"] |= collision
+        info["off_road"] |= off_share == 1.0
+        info["success"] = bool(arrived and not info["collision"])
+        info["steps"] += 1
+        info["elapsed_time"] = float(physics.data.time)
+        info["distance"] += float(np.hypot(*(self.xy - previous_xy)))
+        info["average_speed"] = info["distance"] / max(info["elapsed_time"], 1e-9)
+        info["remaining_distance"] = remaining
+        v_kmh = float(np.clip(self.speed * 3.6, 0.0, SPEED_LIMIT_KMH))
+        terms = {
+            "collision": -100.0 * collision,
+            "progress": self.remaining - remaining,
+            "speed": v_kmh / 10.0 if self.speed_reward else 0.0,
+            "off_road": -0.05 * off_share,
+            "other_lane": -0.05 * other_share,
+            "arrival": 100.0 * info["success"],
+        }
+        self.remaining = remaining
+        self.reward_terms = terms
+        self._step_reward = float(sum(terms.values()))
+        info["episode_reward"] += self._step_reward
+
+    def get_reward(self, physics: Physics) -> float:
+        return self._step_reward
+
+    def get_termination(self, physics: Physics) -> float | None:
+        if self.info["collision"] or self.info["success"]:
+            return 0.0
+        return None
+
+    def road_users(self) -> RoadUsers:
+        present = self.traffic.present
+        kinds = tuple(k for k, p in zip(self.traffic.kinds, present, strict=True) if p)
+        return RoadUsers(kinds, self.traffic.poses()[present], self.traffic.half_size[present])
+
+    # --- observation ---------------------------------------------------------------------------------
+    def observation_spec(self, physics: Physics) -> collections.OrderedDict:
+        destination = specs.Array((2,), np.float32, "destination")
+        if self.observation == "camera":
+            size = self.image_size
+            return collections.OrderedDict(
+                image=specs.BoundedArray((self.frames, size, size), np.uint8, 0, 255, "image"),
+                destination=destination,
+            )
+        return collections.OrderedDict(
+            ego=specs.Array((6,), np.float32, "ego"),
+            destination=destination,
+            road_users=specs.Array((self.neighbours, ROAD_USER_COLUMNS), np.float32, "road_users"),
+        )
+
+    def get_observation(self, physics: Physics) -> collections.OrderedDict:
+        obs = collections.OrderedDict()
+        destination = (self.destination - self.xy).astype(np.float32)
+        if self.observation == "camera":
+            size = self.image_size
+            rgb = self.render_camera(physics, "ego/front", size, size)
+            gray = (rgb @ np.array([0.299, 0.587, 0.114])).astype(np.uint8)
+            if self._frames is None:
+                self._frames = collections.deque([gray] * self.frames, maxlen=self.frames)
+            else:
+                self._frames.append(gray)
+            obs["image"] = np.stack(self._frames)
+            obs["destination"] = destination
+            return obs
+        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        obs["ego"] = np.array([self.speed, self.yaw_rate, self.heading_error, self.lane_offset, c, s], np.float32)
+        obs["destination"] = destination
+        obs["road_users"] = self._nearest_road_users(physics)
+        return obs
+
+    def _nearest_road_users(self, physics: Physics) -> np.ndarray:
+        """(K, ROAD_USER_COLUMNS) the K nearest present road users in the ego frame, zero-padded."""
+        traffic = self.traffic
+        out = np.zeros((self.neighbours, ROAD_USER_COLUMNS), np.float32)
+        present = np.flatnonzero(traffic.present)
+        if not len(present) or not self.neighbours:
+            return out
+        poses = traffic.poses()
+        rel = poses[present, :2] - self.xy
+        dist2 = rel[:, 0] ** 2 + rel[:, 1] ** 2
+        k = min(self.neighbours, len(present))
+        order = np.argsort(dist2, kind="stable")[:k]
+        idx = present[order]
+        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        vx, vy = self.vehicle.velocity_body(physics.raw_data)
+        speed, yaw = traffic._current_speed[idx], poses[idx, 2]
+        dyaw = yaw - self.yaw
+        r = rel[order]
+        out[:k, 0] = 1.0
+        out[:k, 1], out[:k, 2] = c * r[:, 0] + s * r[:, 1], -s * r[:, 0] + c * r[:, 1]
+        out[:k, 3], out[:k, 4] = speed * np.cos(dyaw) - vx, speed * np.sin(dyaw) - vy
+        out[:k, 5], out[:k, 6] = np.cos(dyaw), np.sin(dyaw)
+        out[:k, 7:9] = self._lengths[idx]
+        out[:k, 9:] = self._kind_onehot[idx]
+        return out
+
+
+# --- registered tasks -----------------------------------------------------------------------------------
+
+
+@functools.lru_cache(maxsize=8)
+def _road_map(radius: float, lanes: int, arms: int, arm_length: float, lane_width: float,
+              crosswalk_offset: float) -> RoadMap:
+    """The roundabout map (built once per parameter set; maps are immutable data)."""
+    return roads.roundabout(radius=radius, lanes=lanes, arms=arms, arm_length=arm_length,
+                            lane_width=lane_width, crosswalk_offset=crosswalk_offset)
+
+
+def _make(level: str, time_limit=MAX_STEPS * CONTROL_TIMESTEP, observation="features", vehicle="sedan",
+          radius=14.0, lanes=2, arms=4, arm_length=50.0, lane_width=3.5, crosswalk_offset=6.0,
+          road_users: dict[str, int] | None = None, random=None, environment_kwargs=None,
+          **task_kwargs) -> DrivingEnvironment:
+    road_map = _road_map(float(radius), int(lanes), int(arms), float(arm_length), float(lane_width),
+                         float(crosswalk_offset))
+    kinds = counts_to_kinds(DENSITIES[level] if road_users is None else road_users)
+    model = world.build(road_map, vehicle=vehicle, traffic=slots(kinds))
+    physics = Physics.from_model(wrapper.MjModel(model))
+    task = RoundaboutTask(model, road_map, kinds, observation=observation, vehicle=vehicle, random=random,
+                          **task_kwargs)
+    environment_kwargs = dict(environment_kwargs or {})
+    environment_kwargs.setdefault("control_timestep", CONTROL_TIMESTEP)
+    return DrivingEnvironment(physics, task, time_limit=time_limit, **environment_kwargs)
+
+
+def _register(level: str):
+    counts = DENSITIES[level]
+
+    def task_fn(**kwargs) -> DrivingEnvironment:
+        return _make(level, **kwargs)
+
+    task_fn.__name__ = level
+    task_fn.__doc__ = (f"Roundabout entry with the study's {level[1:]}-vehicle density: "
+                       + ", ".join(f"{n} {k}s" for k, n in counts.items()) + ".")
+    SUITE.add("study000", "density")(task_fn)
+    return task_fn
+
+
+d120 = _register("d120")
+d140 = _register("d140")
+d160 = _register("d160")
+d210 = _register("d210")
