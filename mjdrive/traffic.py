@@ -101,6 +101,7 @@ class TrafficConfig:
     crosswalk_margin: float = 1.0  # [m] vehicles stop this far before a crosswalk / a pedestrian's band
     kerb: float = 0.9  # [m] where pedestrians wait, beyond the end of the crosswalk
     pedestrian_wait: tuple[float, float] = (2.0, 10.0)  # [s] wait at the kerb before looking for a gap
+    respawn: bool = True  # vehicles that left the map re-enter at the sources
     decision_period: float = 0.4  # [s] behaviour updates (about a driver's reaction time)
     substep: float = 0.02  # [s] pose resolution (mocap written at this period)
 
@@ -234,6 +235,7 @@ class Traffic:
         self.mocap_ids: np.ndarray | None = None
         self.cpu_time = 0.0  # [s] wall time spent in `advance` (for benchmarks)
         self.stats = {"spawned": 0, "despawned": 0, "lane_changes": 0}
+        self.generation = np.zeros(self.n, dtype=np.int64)  # per slot: +1 each time a road user (re)enters
         self.ego: EgoState | None = None
         self._obstacle_cache = None
         self._ctx_s, self._ctx_v, self._ctx_len = np.zeros(self.nv + 1), np.zeros(self.nv + 1), np.zeros(self.nv + 1)
@@ -335,6 +337,7 @@ class Traffic:
         if not len(rows):
             return
         rng = self.rng
+        self.generation[self.vehicle_slots[rows]] += 1
         self.active[rows] = True
         self.path[rows] = -1
         self.path[rows, 0] = lane
@@ -347,6 +350,55 @@ class Traffic:
         self.lc_shift[rows] = 0.0
         self.lc_dist[rows] = 1e9
         self.accel[rows] = 0.0
+
+    def place(self, row: int, path: Sequence[int], s: float, speed: float, desired_speed: float | None = None,
+              lateral: float = 0.0) -> None:
+        """Put vehicle `row` (index among the vehicle slots) at s [m] on path[0], moving at `speed` [m/s]
+        along `path` (lane ids; random successors after it), with a desired speed [m/s] and lateral offset
+        [m] (for scenes and tests). Takes effect from the next decision."""
+        m = self.map
+        self._settle()
+        lanes = [int(x) for x in path][:PATH]
+        self.generation[self.vehicle_slots[row]] += 1
+        self.active[row] = True
+        self.path[row] = -1
+        self.path[row, : len(lanes)] = lanes
+        if len(lanes) < PATH:
+            self._fill_path(np.array([row]), start=len(lanes))
+        self.s[row], self.v[row] = s, speed
+        self.v0[row] = m.speed_limit[lanes[0]] if desired_speed is None else desired_speed
+        self.d_pref[row], self.lc_shift[row], self.lc_dist[row] = lateral, 0.0, 1e9
+        self.accel[row] = 0.0
+        self._restart()
+
+    def place_pedestrian(self, row: int, u: float, direction: float, walking: bool = True,
+                         speed: float = 1.3) -> None:
+        """Put pedestrian `row` (index among the pedestrian slots) at u [m] along its crosswalk, walking (or
+        waiting) in `direction` (+1 / -1 along the crosswalk) at `speed` [m/s]."""
+        self._settle()
+        self.ped_u[row], self.ped_dir[row] = u, float(np.sign(direction) or 1.0)
+        self.ped_walking[row], self.ped_speed[row] = walking, speed
+        self.ped_wait[row] = 1e9 if not walking else 0.0
+        self._restart()
+
+    def remove_all(self) -> None:
+        """Take every vehicle off the map (pedestrians stay)."""
+        self._settle()
+        self.active[:] = False
+        self.v[:] = 0.0
+        self._restart()
+
+    def _settle(self) -> None:
+        """Make the present substep the state and drop the rest of the plan (before editing the state)."""
+        if self._plan is not None and self._k > 0:
+            self._commit(self._k - 1)
+        self._plan = None
+        self._k = 0
+
+    def _restart(self) -> None:
+        """After an edit: the next `advance` decides from the edited present state."""
+        self._obstacle_cache = None
+        self._current_pos, self._current_yaw, self._current_speed = self._poses_now()
 
     # --- stepping --------------------------------------------------------------------------------------
     def advance(self, dt: float, ego: Callable[[], EgoState | None] | None = None,
@@ -391,9 +443,9 @@ class Traffic:
             data.mocap_pos[self.mocap_ids] = self._current_pos
             data.mocap_quat[self.mocap_ids] = quat
 
-    def _commit(self) -> None:
-        """Make the end of the current plan the new state."""
-        t_end = self._t_plan[-1]
+    def _commit(self, k: int = -1) -> None:
+        """Make the plan's substep k (default: its end) the new state."""
+        t_end = self._t_plan[k]
         v, a = self.v, self.accel
         stop = (a < 0) & (v + a * t_end < 0)
         ds = np.where(stop, v * v / np.maximum(-2 * a, 1e-9), v * t_end + 0.5 * a * t_end**2)
@@ -403,9 +455,9 @@ class Traffic:
         self.v = np.where(self.active, np.maximum(v + a * t_end, 0.0), 0.0)
         if self.np_:
             self._commit_pedestrians(t_end)
-        self._current_pos = self._plan.pos[-1]
-        self._current_yaw = self._plan.yaw[-1]
-        self._current_speed = self._plan.speed[-1]
+        self._current_pos = self._plan.pos[k]
+        self._current_yaw = self._plan.yaw[k]
+        self._current_speed = self._plan.speed[k]
         self._plan = None
 
     def _commit_pedestrians(self, t_end: float) -> None:
@@ -481,7 +533,7 @@ class Traffic:
         """Inactive vehicles re-enter at a random clear source (at most one per source per decision)."""
         m, cfg = self.map, self.config
         idle = np.flatnonzero(~self.active)
-        if not len(idle) or not len(m.sources):
+        if not len(idle) or not len(m.sources) or not cfg.respawn:
             return False
         lane = np.where(self.active, self.path[:, 0], -1)
         near_start = (lane[:, None] == m.sources[None]) & ((self.s - self.length / 2)[:, None] < cfg.spawn_clear)
@@ -661,6 +713,15 @@ class Traffic:
                                            + 2 * m.anticipation * np.maximum(to_end, 0)), np.inf)
         v0 = np.minimum(np.minimum(f["v0"], m.speed_limit[lane0]), np.minimum(vcurve, vnext))
         acc = f["a"] * (1.0 - (v / np.maximum(v0, 0.1)) ** 4 - interaction)
+        # Safety cap (Krauss-like): whatever the obstacle does (braking at max_decel), the follower can
+        # still stop s0 short of it after this decision period: with the end speed w of the period,
+        # distance (v + w) tau / 2 + w^2 / (2 b) <= gap - s0 + v_lead^2 / (2 b).
+        b, tau = cfg.max_decel, cfg.decision_period
+        v_lead = np.maximum(lead, 0.0)
+        room = np.where(np.isfinite(gap), gap - s0[None] + v_lead * v_lead / (2 * b), np.inf).min(axis=1)
+        disc = 0.25 * tau * tau + 2.0 * (room - 0.5 * v * tau) / b
+        w = np.where(disc > 0, b * (np.sqrt(np.maximum(disc, 0.0)) - 0.5 * tau), 0.0)
+        acc = np.minimum(acc, (np.maximum(w, 0.0) - v) / tau)
         return np.maximum(np.minimum(acc, f["a"]), -cfg.max_decel)
 
     def _obstacles(self):
