@@ -1,0 +1,181 @@
+"""Study 000's roundabout task: densities, observations, eq. 12 reward, contacts, limits, the scripted
+drivers, determinism."""
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import pytest
+
+import mjdrive  # noqa: F401  (registers the gymnasium ids)
+from mjdrive import suite
+from mjdrive.control.autopilot import Autopilot
+from mjdrive.tasks.roundabout import DENSITIES, MAX_STEPS
+
+TERMS = {"collision", "progress", "speed", "off_road", "other_lane", "arrival"}
+
+
+@pytest.fixture(scope="module")
+def env210():
+    return suite.load("roundabout", "d210", {"random": 0})
+
+
+def _drive(env, driver, max_steps=MAX_STEPS):
+    timestep = env.reset()
+    driver.reset()
+    rewards = []
+    while not timestep.last() and len(rewards) < max_steps:
+        timestep = env.step(driver(env.physics))
+        rewards.append(timestep.reward)
+    return timestep, rewards
+
+
+@pytest.mark.parametrize("level", sorted(DENSITIES))
+def test_density_levels_have_their_road_users(level):
+    env = suite.load("roundabout", level, {"random": 0})
+    traffic = env.task.traffic
+    counts = {kind: traffic.kinds.count(kind) for kind in set(traffic.kinds)}
+    assert counts == {k: n for k, n in DENSITIES[level].items() if n}
+    assert env.physics.model.nmocap == traffic.n
+    env.reset()
+    users = env.task.road_users()
+    assert len(users.kinds) == len(users.poses) == len(users.half_sizes) == traffic.present.sum() > 10
+
+
+def test_observations_camera_stack_and_destination_vector():
+    env = suite.load("roundabout", "d120", {"random": 1, "observation": "camera"})
+    timestep = env.reset()
+    image = timestep.observation["image"]
+    assert image.shape == (4, 84, 84) and image.dtype == np.uint8
+    assert all(np.array_equal(image[0], image[k]) for k in range(4))  # the first frame, repeated
+    for _ in range(3):
+        timestep = env.step(np.array([0.6, 0.0, 0.0]))
+    image = timestep.observation["image"]
+    assert not np.array_equal(image[-1], image[0])  # the newest frame last, and the scene moved
+    task = env.task
+    np.testing.assert_allclose(timestep.observation["destination"], task.destination - task.xy, atol=1e-4)
+    assert image.std() > 5  # not a blank frame
+
+
+def test_features_observation_lists_the_nearest_road_users(env210):
+    timestep = env210.reset()
+    obs = timestep.observation
+    assert obs["ego"].shape == (6,) and obs["destination"].shape == (2,)
+    users = obs["road_users"]
+    assert users.shape == (8, 13) and users[:, 0].all()
+    distances = np.hypot(users[:, 1], users[:, 2])
+    assert np.all(np.diff(distances) >= -1e-4)  # nearest first
+    assert np.allclose(users[:, 9:].sum(axis=1), 1.0)  # one kind each
+    nearest = np.sort(np.hypot(*(env210.task.road_users().poses[:, :2] - env210.task.xy).T))[:8]
+    np.testing.assert_allclose(distances, nearest, atol=1e-3)
+
+
+def test_ego_hitting_a_traffic_car_is_a_real_contact_and_ends_the_episode(env210):
+    env = env210
+    env.reset()
+    task = env.task
+    traffic = task.traffic
+    traffic.remove_all()
+    traffic.place(0, task.route[1:], s=6.5, speed=0.0, desired_speed=0.0)  # parked on the entry, ahead
+    driver = Autopilot(task, env.control_timestep(), careful=False)  # drives into it
+    for _ in range(30):
+        timestep = env.step(driver(env.physics))
+        if timestep.last():
+            break
+    assert timestep.last() and timestep.discount == 0.0
+    assert task.info["collision"] and not task.info["success"]
+    assert task.reward_terms["collision"] == -100.0
+    name = mujoco.mj_id2name(env.physics.model.ptr, mujoco.mjtObj.mjOBJ_GEOM, task.collision_sensor.last_other_geom)
+    assert name.startswith("traffic_0_")
+    data = env.physics.data.ptr
+    geoms = {(int(c.geom1), int(c.geom2)) for c in data.contact[: data.ncon]}
+    assert any(task.collision_sensor.last_other_geom in pair for pair in geoms)  # a MuJoCo contact
+
+
+def test_reward_terms_follow_eq_12(env210):
+    env = env210
+    env.reset()
+    task = env.task
+    remaining = task.remaining
+    for k in range(25):
+        timestep = env.step(np.array([0.5, 0.0, 0.0]) if k < 15 else np.array([0.0, 0.0, 1.0]))
+        terms = task.reward_terms
+        assert set(terms) == TERMS
+        assert timestep.reward == pytest.approx(sum(terms.values()))
+        assert terms["progress"] == pytest.approx(remaining - task.remaining)
+        assert terms["speed"] == pytest.approx(np.clip(task.speed * 3.6, 0, 30) / 10)
+        assert -0.05 <= terms["off_road"] <= 0 and -0.05 <= terms["other_lane"] <= 0
+        assert terms["arrival"] == (100.0 if task.info["success"] else 0.0)
+        remaining = task.remaining
+        if timestep.last():
+            break
+    assert task.info["steps"] == k + 1
+    assert task.info["episode_reward"] == pytest.approx(task.info["episode_reward"])
+
+
+def test_episode_is_truncated_after_1100_steps():
+    env = suite.load("roundabout", "d120", {"random": 0})
+    timestep = env.reset()
+    steps = 0
+    while not timestep.last():
+        timestep = env.step(np.array([0.0, 0.0, 1.0]))  # wait at the yield line for ever
+        steps += 1
+    assert steps == MAX_STEPS and timestep.discount == 1.0  # truncated, not terminated
+    assert env.task.info["elapsed_time"] == pytest.approx(MAX_STEPS * 0.2)
+    assert not env.task.info["collision"] and not env.task.info["success"]
+
+
+@pytest.mark.parametrize("level", ["d120", "d210"])
+def test_careful_autopilot_arrives(level):
+    env = suite.load("roundabout", level, {"random": 3})
+    driver = Autopilot(env.task, env.control_timestep(), careful=True)
+    for _ in range(3):
+        timestep, rewards = _drive(env, driver)
+        info = env.task.info
+        assert info["success"] and not info["collision"], info
+        assert timestep.discount == 0.0 and rewards[-1] > 100.0  # the arrival bonus
+        assert info["remaining_distance"] < 1.0
+        assert info["distance"] == pytest.approx(info["route_length"], rel=0.1)
+        assert info["average_speed"] == pytest.approx(info["distance"] / info["elapsed_time"])
+
+
+def test_just_drive_collides_at_the_densest_level(env210):
+    driver = Autopilot(env210.task, env210.control_timestep(), careful=False)
+    collisions = sum(_drive(env210, driver)[0].discount == 0.0 and env210.task.info["collision"]
+                     for _ in range(10))
+    assert collisions >= 2
+
+
+def _rollout(env_id, seed, steps=40):
+    env = gym.make(env_id)
+    observation, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    observations, users = [observation], []
+    for _ in range(steps):
+        action = rng.uniform([0, -0.3, 0], [1, 0.3, 0.2]).astype(np.float32)
+        observation, _, terminated, truncated, _ = env.step(action)
+        observations.append(observation)
+        users.append(env.unwrapped.task.road_users().poses.copy())
+        if terminated or truncated:
+            observation, _ = env.reset()
+    return observations, users
+
+
+@pytest.mark.parametrize("env_id", ["mjdrive/Roundabout-D210-v0", "mjdrive/Roundabout-D120-Camera-v0"])
+def test_same_seed_same_episode_bit_for_bit(env_id):
+    obs_a, users_a = _rollout(env_id, 5)
+    obs_b, users_b = _rollout(env_id, 5)
+    for x, y in zip(obs_a, obs_b, strict=True):
+        for key in x:
+            assert np.array_equal(x[key], y[key]), key
+    for x, y in zip(users_a, users_b, strict=True):
+        assert np.array_equal(x, y)
+    _, users_c = _rollout(env_id, 6)
+    assert not all(np.array_equal(x, y) for x, y in zip(users_a, users_c, strict=False))
+
+
+def test_roundabout7_actions():
+    env = gym.make("mjdrive/Roundabout-D120-v0", actions="roundabout7")
+    assert env.action_space == gym.spaces.Discrete(7)
+    env.reset(seed=0)
+    env.step(6)  # a6: brake 0.5
+    np.testing.assert_allclose(env.unwrapped.task.last_action, [0.0, 0.0, 0.5])
