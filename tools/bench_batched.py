@@ -35,7 +35,7 @@ def rate(step, seconds: float) -> float:
     return calls / elapsed
 
 
-def bench_single(task: str, seconds: float, **task_kwargs) -> float:
+def bench_single(task: str, seconds: float, rounds: int, **task_kwargs) -> float:
     domain, name = task.split("/")
     env = make_env(domain, name, **task_kwargs)
     env.reset(seed=0)
@@ -45,18 +45,31 @@ def bench_single(task: str, seconds: float, **task_kwargs) -> float:
         if terminated or truncated:
             env.reset()
 
-    result = rate(step, seconds)
+    result = max(rate(step, seconds) for _ in range(rounds))
     env.close()
     return result
 
 
-def bench_batched(task: str, num_envs: int, nthread: int, backend: str, seconds: float,
+def bench_batched(task: str, num_envs: int, nthread: int, backend: str, seconds: float, rounds: int,
                   **task_kwargs) -> float:
+    """Best of `rounds` measurements (the best is the least disturbed by other jobs on the machine)."""
     domain, name = task.split("/")
     env = BatchedEnv(domain, name, num_envs=num_envs, nthread=nthread, backend=backend, **task_kwargs)
     env.reset(seed=0)
     actions = np.repeat(CRUISE[None], num_envs, axis=0)
-    result = rate(lambda: env.step(actions), seconds) * num_envs
+    result = max(rate(lambda: env.step(actions), seconds) for _ in range(rounds)) * num_envs
+    env.close()
+    return result
+
+
+def bench_physics(task: str, num_envs: int, nthread: int, backend: str, seconds: float, rounds: int) -> float:
+    """The physics call alone (BatchedEnv._step_physics), env steps/s: the part that threads can speed up."""
+    domain, name = task.split("/")
+    env = BatchedEnv(domain, name, num_envs=num_envs, nthread=nthread, backend=backend)
+    env.reset(seed=0)
+    for base in env.bases:
+        base.task.before_step(CRUISE.astype(np.float64), base.dm_env.physics)
+    result = max(rate(env._step_physics, seconds) for _ in range(rounds)) * num_envs
     env.close()
     return result
 
@@ -67,12 +80,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sizes", type=int, nargs="+", default=[1, 8, 32])
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--backends", nargs="+", default=["serial", "threads", "rollout"])
-    parser.add_argument("--seconds", type=float, default=3.0, help="wall time per measurement [s]")
+    parser.add_argument("--seconds", type=float, default=1.5, help="wall time per measurement [s]")
+    parser.add_argument("--rounds", type=int, default=3, help="measurements per figure; the best is kept")
     parser.add_argument("--camera", action="store_true", help="also measure the camera observation")
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
 
     observations = ["features"] + (["camera"] if args.camera else [])
+    load = os.getloadavg()[0]
     lines = [
         f"# BatchedEnv throughput ({args.task}; {platform.machine()}, {os.cpu_count()} cores, "
         f"python {platform.python_version()})",
@@ -84,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
         "| --- | --- | ---: | ---: | ---: | ---: | ---: |",
     ]
     for observation in observations:
-        single = bench_single(args.task, args.seconds, observation=observation)
+        single = bench_single(args.task, args.seconds, args.rounds, observation=observation)
         lines.append(f"| {observation} | single DrivingGymEnv | 1 | {single:,.0f} | | | 1.00 |")
         for backend in args.backends:
             for n in args.sizes:
@@ -93,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
                     if backend == "serial" and nthread > 1:
                         continue
                     rates[nthread] = bench_batched(args.task, n, nthread, backend, args.seconds,
-                                                   observation=observation)
+                                                   args.rounds, observation=observation)
                     print(f"{observation} {backend} N={n} threads={nthread}: {rates[nthread]:,.0f} steps/s",
                           flush=True)
                 one, two = rates.get(1), rates.get(2)
@@ -101,12 +116,21 @@ def main(argv: list[str] | None = None) -> int:
                 best = max(rates.values())
                 lines.append(f"| {observation} | {backend} | {n} | {one or 0:,.0f} | "
                              f"{f'{two:,.0f}' if two else ''} | {scaling} | {best / single:.2f} |")
+    lines += ["", "Physics call alone (no task Python), env steps/s:", "",
+              "| backend | N | 1 thread | 2 threads | scaling 2/1 |", "| --- | ---: | ---: | ---: | ---: |"]
+    for backend in [b for b in args.backends if b != "serial"]:
+        for n in [n for n in args.sizes if n > 1]:
+            one, two = (bench_physics(args.task, n, t, backend, args.seconds, args.rounds) for t in (1, 2))
+            print(f"physics {backend} N={n}: {one:,.0f} / {two:,.0f}", flush=True)
+            lines.append(f"| {backend} | {n} | {one:,.0f} | {two:,.0f} | {two / one:.2f} |")
     lines += [
         "",
         "steps/s: transitions per wall second (N per batched step), features observation unless stated.",
         "scaling 2/1: the same N and backend with 2 threads over 1 thread. Only the physics call runs in "
         "threads; the tasks' Python (sensors, rewards, observations, rendering) runs on one core.",
-        "The machine is shared with other jobs, so figures vary by about 10-20% between runs.",
+        f"Best of {args.rounds} x {args.seconds} s per figure. The machine is shared with other jobs "
+        f"(1-min load average {load:.1f} at the start; 2 cores), so figures vary between runs; the scaling "
+        "column is the one to compare.",
     ]
     report = "\n".join(lines)
     print(report)
