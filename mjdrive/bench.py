@@ -2,6 +2,9 @@
 
 Figures are ratios within one process on one machine, so they compare across machines better than the
 absolute numbers. Simulated seconds per wall second = steps/s x step duration.
+
+The roundabout section runs every density level with the ego waiting at its yield line (brake) while the
+traffic flows, and highway-env's roundabout-v0 in the same process when it is installed (extra `bench`).
 """
 
 from __future__ import annotations
@@ -17,6 +20,9 @@ from mjdrive import suite
 from mjdrive.sensors import CameraRenderer
 
 CRUISE_ACTION = np.array([0.25, 0.0, 0.0])  # gentle throttle, straight ahead
+HOLD_ACTION = np.array([0.0, 0.0, 1.0])  # brake: the ego waits at its yield line, traffic flows around it
+ROUNDABOUT_LEVELS = ("d120", "d140", "d160", "d210")
+ROUNDS = 5  # interleaved raw / env measurement rounds per roundabout level (the best of each is kept)
 
 
 def _rate(step: Callable[[], None], seconds: float) -> float:
@@ -97,4 +103,124 @@ def run_benchmarks(tasks: list[str], seconds: float = 3.0, image_size: int = 128
         "env/raw: simulated seconds per wall second of the env (features observation) over raw `mj_step`.",
         "camera step vs features step + render: the camera observation should cost no more than its render.",
     ]
+    return "\n".join(lines)
+
+
+def _timed_rate(step: Callable[[], None], seconds: float, counter: Callable[[], float]) -> tuple[float, float]:
+    """(calls of `step` per wall second, share of that wall time that `counter` [s] grew by)."""
+    step()
+    before, calls, start = counter(), 0, time.perf_counter()
+    while True:
+        for _ in range(10):
+            step()
+        calls += 10
+        elapsed = time.perf_counter() - start
+        if elapsed >= seconds:
+            return calls / elapsed, (counter() - before) / elapsed
+
+
+def bench_roundabout(level: str, seconds: float = 3.0, image_size: int = 84) -> dict[str, float]:
+    """Raw physics, env features (with the traffic update's share of the time) and env camera throughput
+    of one roundabout density, the ego braking at its yield line."""
+    env = suite.load("roundabout", level, {"random": 0})
+    env.reset()
+    model, dt, n_sub = env.physics.model.ptr, env.physics.timestep(), env._n_sub_steps
+    data = mujoco.MjData(model)
+    src = env.physics.data
+    for name in ("qpos", "qvel", "ctrl", "mocap_pos", "mocap_quat"):
+        getattr(data, name)[:] = getattr(src, name)
+    mujoco.mj_forward(model, data)
+    traffic = env.task.traffic
+
+    def step(environment):
+        def go():
+            if environment.step(HOLD_ACTION).last():
+                environment.reset()
+        return go
+
+    result = {"dt": dt, "n_sub": n_sub, "users": traffic.n, "decision": traffic.config.decision_period}
+    # Interleaved short rounds, best of each: robust to other processes sharing the machine.
+    raw, envs = [], []
+    for _ in range(ROUNDS):
+        raw.append(_rate(lambda: mujoco.mj_step(model, data, n_sub), seconds / ROUNDS) * n_sub)
+        envs.append(_timed_rate(step(env), seconds / ROUNDS, lambda: traffic.cpu_time))
+    result["raw_steps_per_s"] = max(raw)
+    result["env_steps_per_s"], result["traffic_share"] = max(envs)
+    camera_env = suite.load("roundabout", level, {"random": 0, "observation": "camera", "image_size": image_size})
+    camera_env.reset()
+    result["camera_env_steps_per_s"] = _rate(step(camera_env), seconds)
+    for camera in camera_env.task.cameras.values():
+        camera.close()
+    return result
+
+
+def bench_highway_env(seconds: float = 3.0) -> dict[str, float] | None:
+    """highway-env's roundabout-v0 (kinematic cars, no rendering, IDLE action) if installed, else None."""
+    try:
+        import gymnasium as gym
+        import highway_env  # noqa: F401  (registers the ids)
+    except ImportError:
+        return None
+    env = gym.make("roundabout-v0")
+    env.reset(seed=0)
+
+    def go():
+        _, _, terminated, truncated, _ = env.step(1)  # IDLE
+        if terminated or truncated:
+            env.reset()
+
+    rate = _rate(go, seconds)
+    config = env.unwrapped.config
+    result = {"steps_per_s": rate, "policy_dt": 1.0 / config["policy_frequency"],
+              "sim_dt": 1.0 / config["simulation_frequency"], "vehicles": len(env.unwrapped.road.vehicles),
+              "version": getattr(highway_env, "__version__", "?")}
+    env.close()
+    return result
+
+
+def run_roundabout_benchmarks(levels=ROUNDABOUT_LEVELS, seconds: float = 3.0, image_size: int = 84,
+                              highway: bool = True) -> str:
+    """A markdown report: every roundabout density, and highway-env's roundabout-v0 if installed."""
+    lines = [
+        f"# mjdrive bench, roundabout ({platform.processor() or platform.machine()}, {mujoco.__version__=}, "
+        "one thread)",
+        "",
+        "| task | road users | raw mj_step [steps/s] | raw [sim-s/wall-s] | env features [steps/s] "
+        "| env [sim-s/wall-s] | env/raw | traffic share of step | traffic [ms/step] | env camera [steps/s] "
+        "| camera [sim-s/wall-s] |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for level in levels:
+        r = bench_roundabout(level, seconds, image_size)
+        control_dt = r["dt"] * r["n_sub"]
+        raw_sim = r["raw_steps_per_s"] * r["dt"]
+        env_sim = r["env_steps_per_s"] * control_dt
+        lines.append(
+            f"| roundabout/{level} | {r['users']} | {r['raw_steps_per_s']:,.0f} | {raw_sim:.1f} "
+            f"| {r['env_steps_per_s']:,.0f} | {env_sim:.1f} | {env_sim / raw_sim:.0%} | {r['traffic_share']:.0%} "
+            f"| {1e3 * r['traffic_share'] / r['env_steps_per_s']:.2f} | {r['camera_env_steps_per_s']:,.0f} "
+            f"| {r['camera_env_steps_per_s'] * control_dt:.1f} |"
+        )
+    hw = bench_highway_env(seconds) if highway else None
+    if hw is not None:
+        lines.append(
+            f"| highway-env {hw['version']} roundabout-v0 | {hw['vehicles']} | - | - | {hw['steps_per_s']:,.0f} "
+            f"| {hw['steps_per_s'] * hw['policy_dt']:.1f} | - | - | - | - | - |"
+        )
+    lines += [
+        "",
+        f"Roundabout: control 5 Hz (100 physics steps of {r['dt'] * 1e3:.0f} ms), traffic poses written every "
+        f"0.02 s, traffic decisions every {r['decision']:.1f} s; the ego brakes at its yield line while the "
+        f"traffic flows; camera = 4 stacked {image_size}x{image_size} gray frames.",
+        "raw: `mj_step` of the same model from the same state (traffic boxes still). env/raw: simulated "
+        "seconds per wall second of the env (features observation) over raw physics. traffic share: wall "
+        "time inside `Traffic.advance` (decisions, motion, mocap writes) over the env's wall time. Raw and "
+        f"env are measured in {ROUNDS} interleaved rounds; each figure is the best round (robust to other "
+        "processes on the machine).",
+    ]
+    if hw is not None:
+        lines.append(f"highway-env: {1 / hw['policy_dt']:.0f} Hz policy, {1 / hw['sim_dt']:.0f} Hz kinematic "
+                     "simulation, no rendering, IDLE action, in the same process.")
+    elif highway:
+        lines.append("highway-env is not installed (`pip install mjdrive[bench]` adds it).")
     return "\n".join(lines)

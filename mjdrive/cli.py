@@ -117,9 +117,14 @@ def cmd_logs(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    from mjdrive.bench import run_benchmarks
+    from mjdrive.bench import run_benchmarks, run_roundabout_benchmarks
 
-    report = run_benchmarks(args.tasks, seconds=args.seconds, image_size=args.image_size)
+    parts = []
+    if args.tasks:
+        parts.append(run_benchmarks(args.tasks, seconds=args.seconds, image_size=args.image_size))
+    if args.roundabout:
+        parts.append(run_roundabout_benchmarks(args.roundabout, seconds=args.seconds, highway=args.highway))
+    report = "\n\n".join(parts)
     print(report)
     if args.out:
         Path(args.out).write_text(report + "\n")
@@ -149,7 +154,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--task", default="waypoints/four_routes", help="DOMAIN/TASK (see `mjdrive list`)")
     run.add_argument("--task-kwarg", action="append", default=[], metavar="KEY=VALUE",
                      help="task keyword argument, e.g. observation=camera buildings=true (repeatable)")
-    run.add_argument("--policy", default="pure_pursuit", help="pure_pursuit | random | idle")
+    run.add_argument("--policy", default="pure_pursuit", help="pure_pursuit | autopilot | random | idle")
     run.add_argument("--episodes", type=int, default=1)
     run.add_argument("--seed", type=int, default=0)
     run.add_argument("--out", default="runs/demo", help="output folder")
@@ -173,7 +178,12 @@ def build_parser() -> argparse.ArgumentParser:
     logs.set_defaults(func=cmd_logs)
 
     bench = sub.add_parser("bench", help="throughput: raw mj_step vs env steps, with and without camera")
-    bench.add_argument("--tasks", nargs="+", default=["waypoints/straight", "waypoints/random_routes"])
+    bench.add_argument("--tasks", nargs="*", default=["waypoints/straight", "waypoints/random_routes"],
+                       help="tasks for the env-vs-raw table (none: skip it)")
+    bench.add_argument("--roundabout", nargs="*", default=["d120", "d140", "d160", "d210"], metavar="LEVEL",
+                       help="roundabout densities for the roundabout table (none: skip it)")
+    bench.add_argument("--highway", action=argparse.BooleanOptionalAction, default=True,
+                       help="also run highway-env's roundabout-v0 when it is installed")
     bench.add_argument("--seconds", type=float, default=3.0, help="wall time per measurement [s]")
     bench.add_argument("--image-size", type=int, default=128)
     bench.add_argument("--out", default=None, help="also write the report to this file")

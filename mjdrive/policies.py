@@ -10,7 +10,7 @@ import numpy as np
 from mjdrive.control import PurePursuit
 
 Policy = Callable[[dict], np.ndarray]
-POLICIES = ("pure_pursuit", "random", "idle")
+POLICIES = ("pure_pursuit", "autopilot", "random", "idle")
 
 
 def pure_pursuit_policy(env: gym.Env, cruise: float | None = None) -> Policy:
@@ -34,10 +34,30 @@ def pure_pursuit_policy(env: gym.Env, cruise: float | None = None) -> Policy:
     return act
 
 
+def autopilot_policy(env: gym.Env) -> Policy:
+    """The careful privileged autopilot of tasks with traffic (`mjdrive.control.autopilot`): pure pursuit
+    along the route, speed from the traffic model's own rules (yields, stops for pedestrians)."""
+    from mjdrive.control.autopilot import Autopilot
+
+    task, dm_env = env.unwrapped.task, env.unwrapped.dm_env
+    if not hasattr(task, "traffic"):
+        raise ValueError("the autopilot policy needs a task with traffic (e.g. roundabout/d120)")
+    driver = Autopilot(task, dm_env.control_timestep())
+
+    def act(observation: dict) -> np.ndarray:
+        if task.info.get("steps", 0) == 0:
+            driver.reset()
+        return driver(dm_env.physics).astype(np.float32)
+
+    return act
+
+
 def make_policy(name: str, env: gym.Env, seed: int = 0) -> Policy:
     """A policy by name; unknown names raise ValueError listing the valid ones."""
     if name == "pure_pursuit":
         return pure_pursuit_policy(env)
+    if name == "autopilot":
+        return autopilot_policy(env)
     if name == "random":
         space = env.action_space
         space.seed(seed)

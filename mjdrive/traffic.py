@@ -468,8 +468,10 @@ class Traffic:
         self.ped_u = np.clip(u, -end, end)
         self.ped_walking &= ~arrived
         self.ped_dir = np.where(arrived, -self.ped_dir, self.ped_dir)
-        lo, hi = cfg.pedestrian_wait
-        self.ped_wait = np.where(arrived, self.rng.uniform(lo, hi, self.np_), self.ped_wait - t_end)
+        self.ped_wait -= t_end
+        if arrived.any():
+            lo, hi = cfg.pedestrian_wait
+            self.ped_wait[arrived] = self.rng.uniform(lo, hi, int(arrived.sum()))
 
     # --- decisions -------------------------------------------------------------------------------------
     def _decide(self) -> None:
@@ -483,7 +485,7 @@ class Traffic:
         if self.np_:
             self._pedestrian_starts(ctx)
         self.accel = np.where(self.active, self._accelerations(self._follower_table(ctx), ctx), 0.0)
-        self._plan = self._make_plan()
+        self._plan = self._make_plan(ctx["start"][: self.nv])
 
     def _advance_lanes(self) -> None:
         """Vehicles past the end of their lane move on along their path (or leave the map at dead ends)."""
@@ -540,7 +542,7 @@ class Traffic:
         clear = ~near_start.any(axis=0)
         if self.ego is not None:
             clear &= np.hypot(m.source_xy[:, 0] - self.ego.x, m.source_xy[:, 1] - self.ego.y) >= cfg.spawn_clear
-        pick = self.rng.integers(len(m.sources), size=len(idle))
+        pick = (self.rng.random(len(idle)) * len(m.sources)).astype(np.int64)
         ok = clear[pick]
         if not ok.any():
             return False
@@ -555,9 +557,11 @@ class Traffic:
         """At most one lane change per decision: a random candidate whose target lane has room."""
         m, cfg = self.map, self.config
         lane0 = np.maximum(self.path[:, 0], 0)
-        targets = np.stack([m.right[lane0], m.left[lane0]], 1)  # (NV, 2)
         rate = np.array(cfg.lane_change_rate) * cfg.decision_period
         draw = self.rng.random((self.nv, 2)) < rate[None]
+        if not draw.any():
+            return
+        targets = np.column_stack([m.right[lane0], m.left[lane0]])  # (NV, 2)
         ok = draw & (targets >= 0) & (self.active & (self.lc_dist >= cfg.lane_change_length)
                                       & (self.s > 1.0) & (self.lead_gap > cfg.lane_change_length))[:, None]
         if not ok.any():
@@ -637,74 +641,73 @@ class Traffic:
                 "yaw": self._current_yaw[vs], "accept_gap": self.config.accept_gap}
 
     def _accelerations(self, f: dict, ctx: dict) -> np.ndarray:
-        """IDM accelerations [m/s^2] of followers `f` (dict of arrays, see `_follower_table`)."""
+        """IDM accelerations [m/s^2] of followers `f` (dict of arrays, see `_follower_table`).
+
+        Every obstacle of every follower is a column of one (F, columns) table of gaps [m] (bumper to
+        obstacle, inf where none), obstacle speeds [m/s] and minimum gaps s0 [m]: path leaders, the corridor,
+        crosswalk stop lines, merge stop lines. IDM takes the most constraining one."""
         m, cfg = self.map, self.config
         path, offset, s, v = f["path"], f["offset"], f["s"], f["v"]
         rows, length = f["rows"], f["length"]
         front = s + length / 2
-        gaps, leads, s0s = [], [], []
+        xy_o, yaw_o, v_o, hl_o, hw_o, idx_o = self._obstacles()
+        lane_a = ctx["lane"]
+        n_a, n_o, n_k, n_y = len(lane_a), len(xy_o), len(m.cross_lane), len(m.yield_lane)
+        c1, c2, c3 = n_a, n_a + n_o, n_a + n_o + n_k
+        gap = np.full((len(s), c3 + n_y), np.inf)
+        lead = np.zeros_like(gap)
+        s0 = np.full(gap.shape[1], cfg.stop_gap)
+        s0[:c2] = cfg.min_gap
 
         # 1. Leaders along the planned path (vehicles and the ego).
-        lane_a = ctx["lane"]
         pos = offset[:, lane_a] + ctx["s"][None]  # (F, A) [m] from the start of the follower's lane
-        a_idx = np.arange(len(lane_a))
+        a_idx = np.arange(n_a)
         ahead = (pos > s[:, None]) | ((pos == s[:, None]) & (a_idx[None] > rows[:, None]))
         ahead &= a_idx[None] != rows[:, None]
-        gaps.append(np.where(ahead, pos - front[:, None] - ctx["length"][None] / 2, np.inf))
-        leads.append(np.broadcast_to(ctx["v"][None], gaps[-1].shape))
-        s0s.append(cfg.min_gap)
+        gap[:, :c1] = np.where(ahead, pos - front[:, None] - ctx["length"][None] / 2, np.inf)
+        lead[:, :c1] = ctx["v"][None]
 
         # 2. Anything in the corridor ahead (curvature-corrected): vehicles, the ego, pedestrians.
-        xy_o, yaw_o, v_o, hl_o, hw_o, idx_o = self._obstacles()
         lane0 = np.maximum(path[:, 0], 0)
         vcurve, kappa = m.curve_speed(lane0, s)
         c, sn = np.cos(f["yaw"])[:, None], np.sin(f["yaw"])[:, None]
+        co, so = np.cos(yaw_o)[None], np.sin(yaw_o)[None]
         rx = xy_o[None, :, 0] - f["xy"][:, None, 0]
         ry = xy_o[None, :, 1] - f["xy"][:, None, 1]
         dx = c * rx + sn * ry
         dy = -sn * rx + c * ry - 0.5 * kappa[:, None] * dx * dx
-        dyaw = yaw_o[None] - f["yaw"][:, None]
-        cd, sd = np.abs(np.cos(dyaw)), np.abs(np.sin(dyaw))
-        ey = sd * hl_o[None] + cd * hw_o[None]
+        cos_d = co * c + so * sn  # cos and sin of the obstacle's yaw relative to the follower
+        cd, sd = np.abs(cos_d), np.abs(so * c - co * sn)
         inside = (dx > 0) & (dx < cfg.corridor_range) & (idx_o[None] != rows[:, None])
-        inside &= np.abs(dy) < (f["width"] / 2 + cfg.corridor_margin)[:, None] + ey
-        gaps.append(np.where(inside, dx - (length / 2)[:, None] - cd * hl_o[None] - sd * hw_o[None], np.inf))
-        leads.append(v_o[None] * np.cos(dyaw))
-        s0s.append(cfg.min_gap)
+        inside &= np.abs(dy) < (f["width"] / 2 + cfg.corridor_margin)[:, None] + sd * hl_o[None] + cd * hw_o[None]
+        gap[:, c1:c2] = np.where(inside, dx - (length / 2)[:, None] - cd * hl_o[None] - sd * hw_o[None], np.inf)
+        lead[:, c1:c2] = v_o[None] * cos_d
 
         # 3. Crosswalk stop lines where a pedestrian walks in the lane's band, or where the queue ahead
         #    leaves no room beyond the crosswalk (keep it clear).
-        if len(m.cross_lane):
+        if n_k:
             base = offset[:, m.cross_lane]  # (F, K)
             stop = base + (m.cross_s[:, 0] - cfg.crosswalk_margin)[None] - front[:, None]
-            beyond = base + (m.cross_s[:, 1] + cfg.crosswalk_margin)[None] - front[:, None]
-            path_gap = gaps[0].min(axis=1)
-            slow_leader = np.isfinite(path_gap) & (ctx["v"][np.argmin(gaps[0], axis=1)] < 3.0)
-            room = np.where(np.isfinite(beyond), path_gap[:, None] - np.where(np.isfinite(beyond), beyond, 0), np.inf)
-            no_room = slow_leader[:, None] & (room < (length + cfg.min_gap)[:, None])
-            blocked = no_room | (self._occupied_crossings()[None] if self.np_ else False)
-            gaps.append(np.where(blocked & (stop > -0.5), stop, np.inf))  # at / past the line: go on
-            leads.append(np.zeros_like(stop))
-            s0s.append(cfg.stop_gap)
+            leader = np.argmin(gap[:, :c1], axis=1)
+            path_gap = np.minimum(gap[np.arange(len(s)), leader], 1e9)
+            slow_leader = (path_gap < 1e9) & (ctx["v"][leader] < 3.0)
+            beyond = stop + (m.cross_s[:, 1] - m.cross_s[:, 0] + 2 * cfg.crosswalk_margin)[None]
+            no_room = slow_leader[:, None] & (path_gap[:, None] - beyond < (length + cfg.min_gap)[:, None])
+            blocked = (no_room | self._occupied_crossings()[None]) if self.np_ else no_room
+            gap[:, c2:c3] = np.where(blocked & (stop > -0.5), stop, np.inf)  # at / past the line: go on
 
         # 4. Merge stop lines while a priority vehicle (or the ego) would reach the merge point too soon.
-        if len(m.yield_lane):
+        if n_y:
             conflict = self._merge_conflicts(ctx, f["accept_gap"])  # (Y,)
             if conflict.any():
-                base = np.where(conflict[None], offset[:, m.yield_lane], np.inf)  # (F, Y)
-                stop = base + m.yield_stop[None] - front[:, None]
-                gaps.append(np.where(stop > -0.3, stop, np.inf))
-                leads.append(np.zeros_like(stop))
-                s0s.append(cfg.stop_gap)
+                stop = offset[:, m.yield_lane] + m.yield_stop[None] - front[:, None]
+                gap[:, c3:] = np.where(conflict[None] & (stop > -0.3), stop, np.inf)
 
-        gap = np.concatenate(gaps, axis=1)
+        finite = gap < np.inf
         self.lead_gap = gap.min(axis=1) if len(rows) == self.nv else self.lead_gap
-        lead = np.concatenate(leads, axis=1)
-        s0 = np.concatenate([np.full(g.shape[1], x) for g, x in zip(gaps, s0s, strict=True)])
-        dv = v[:, None] - lead
-        s_star = s0[None] + np.maximum(0.0, (v * f["T"])[:, None] + v[:, None] * dv
+        s_star = s0[None] + np.maximum(0.0, (v * f["T"])[:, None] + v[:, None] * (v[:, None] - lead)
                                        / (2.0 * np.sqrt(f["a"] * f["b"]))[:, None])
-        interaction = np.where(np.isfinite(gap), (s_star / np.maximum(gap, 0.05)) ** 2, 0.0).max(axis=1)
+        interaction = np.where(finite, (s_star / np.maximum(gap, 0.05)) ** 2, 0.0).max(axis=1)
 
         # Desired speed: own v0, the lane's speed limit, the curves ahead on this lane and the next.
         nxt = path[:, 1]
@@ -718,7 +721,7 @@ class Traffic:
         # distance (v + w) tau / 2 + w^2 / (2 b) <= gap - s0 + v_lead^2 / (2 b).
         b, tau = cfg.max_decel, cfg.decision_period
         v_lead = np.maximum(lead, 0.0)
-        room = np.where(np.isfinite(gap), gap - s0[None] + v_lead * v_lead / (2 * b), np.inf).min(axis=1)
+        room = np.where(finite, gap - s0[None] + v_lead * v_lead / (2 * b), np.inf).min(axis=1)
         disc = 0.25 * tau * tau + 2.0 * (room - 0.5 * v * tau) / b
         w = np.where(disc > 0, b * (np.sqrt(np.maximum(disc, 0.0)) - 0.5 * tau), 0.0)
         acc = np.minimum(acc, (np.maximum(w, 0.0) - v) / tau)
@@ -770,7 +773,7 @@ class Traffic:
         return (soon | on_start).any(axis=0)
 
     # --- poses -------------------------------------------------------------------------------------------
-    def _make_plan(self) -> _Plan:
+    def _make_plan(self, start: np.ndarray | None = None) -> _Plan:
         t = self._t_plan[:, None]  # (S, 1)
         v, a = self.v[None], self.accel[None]
         stopped = (a < 0) & (v + a * t < 0)
@@ -779,19 +782,21 @@ class Traffic:
         out_yaw = np.empty((len(t), self.n))
         out_speed = np.zeros((len(t), self.n))
         vs = self.vehicle_slots
-        out_pos[:, vs], out_yaw[:, vs] = self._vehicle_poses(ds)
+        out_pos[:, vs], out_yaw[:, vs] = self._vehicle_poses(ds, start)
         out_speed[:, vs] = np.maximum(v + a * t, 0.0) * self.active[None]
         if self.np_:
             ps = self.pedestrian_slots
             out_pos[:, ps], out_yaw[:, ps], out_speed[:, ps] = self._pedestrian_poses(t)
         return _Plan(out_pos, _yaw_quat(out_yaw), out_yaw, out_speed)
 
-    def _vehicle_poses(self, ds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Poses (S, NV, 3), yaw (S, NV) of the vehicles after moving ds (S, NV) [m] along their paths."""
+    def _vehicle_poses(self, ds: np.ndarray, before: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Poses (S, NV, 3), yaw (S, NV) of the vehicles after moving ds (S, NV) [m] along their paths
+        (`before`: distance (NV, PATH) [m] to the start of each path lane, if known)."""
         m, nv = self.map, self.nv
         path = self.path
-        before = np.zeros((nv, PATH))
-        np.cumsum(np.where(path[:, :-1] >= 0, m.length[path[:, :-1]], np.inf), axis=1, out=before[:, 1:])
+        if before is None:
+            before = np.zeros((nv, PATH))
+            np.cumsum(np.where(path[:, :-1] >= 0, m.length[path[:, :-1]], np.inf), axis=1, out=before[:, 1:])
         p = self.s[None] + ds
         k = (p[..., None] >= before[None, :, 1:]).sum(-1)  # (S, NV) index into the path
         k = np.minimum(k, self._last_path_index()[None])  # stay on a dead end's last lane
@@ -825,7 +830,8 @@ class Traffic:
                                   -end), end)
         xy = self._ped_centre[None] + u[..., None] * self._ped_along[None] + self._ped_side[None]
         pos = np.concatenate([xy, np.zeros(xy.shape[:-1] + (1,))], axis=-1)
-        yaw = np.broadcast_to(self._ped_heading + np.where(self.ped_dir > 0, 0.0, np.pi), u.shape)
+        yaw = np.empty(u.shape)
+        yaw[:] = self._ped_heading + (self.ped_dir < 0) * np.pi
         speed = np.where(walking & (np.abs(u) < end), self.ped_speed[None], 0.0)
         return pos, yaw, speed
 

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import collections
 import functools
+import math
 
 import numpy as np
 from dm_control.mujoco import wrapper
@@ -137,6 +138,8 @@ class RoundaboutTask(DrivingTask):
         self._lengths = 2 * self.traffic.half_size[:, :2]
         self.route: list[int] = []
         self.route_lane: Lane | None = None
+        half = np.array([0.5 * self.params.length, 0.5 * self.params.width])
+        self._footprint = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * half  # (4,2) [m] in the car frame
 
     # --- episode ----------------------------------------------------------------------------------
     def initialize_episode(self, physics: Physics) -> None:
@@ -184,7 +187,7 @@ class RoundaboutTask(DrivingTask):
         """The ego for traffic (and the scripted drivers): pose, speed, and its place on the route."""
         x, y, yaw = self.vehicle.pose(physics.raw_data)
         speed = self.vehicle.speed(physics.raw_data)
-        if self._frame_time == physics.data.time:  # after_step has just placed the ego on the route
+        if self._frame_time >= 0.0:  # the route coordinates of the last control step (a few cm old at most)
             s, d = self.route_s, self.lane_offset
         else:
             s, d = self.route_frame(np.array([[x, y]]))
@@ -202,11 +205,14 @@ class RoundaboutTask(DrivingTask):
         self.xy, self.yaw = np.array([x, y]), yaw
         self.speed = float(self.vehicle.speed(data))  # [m/s]
         self.yaw_rate = float(self.vehicle.yaw_rate(data))  # [rad/s]
-        s, d = self.route_frame(self.xy[None])
+        c, s_ = math.cos(yaw), math.sin(yaw)
+        self.corners = self.xy + self._footprint @ np.array([[c, s_], [-s_, c]])  # (4,2) [m]
+        s, d = self.route_frame(np.vstack([self.xy[None], self.corners]))
         self.route_s, self.lane_offset = float(s[0]), float(d[0])  # [m]
+        self.corner_offsets = d[1:]  # [m] of the footprint corners from the route centre line
         self._frame_time = physics.data.time
         tangent = self.route_frame.tangent[self.route_frame.segment]
-        self.heading_error = float(wrap_angle(yaw - np.arctan2(tangent[1], tangent[0])))  # [rad]
+        self.heading_error = float(wrap_angle(yaw - math.atan2(tangent[1], tangent[0])))  # [rad]
 
     def _remaining(self) -> float:
         """Route distance [m] from the ego to the destination."""
@@ -217,12 +223,10 @@ class RoundaboutTask(DrivingTask):
         self._update_ego(physics)
         info = self.info
         collision = self.collision_sensor(physics.raw_data)
-        corners = self.ego_corners(physics)
-        _, d = self.route_frame(np.vstack([self.xy[None], corners]))
-        in_route = np.abs(d[1:]) <= self._route_width / 2  # on the route's lanes: on the road for sure
-        on_road = in_route if in_route.all() else self.road_map.on_road(corners)
-        off_share = float(np.mean(~on_road))
-        other_share = float(np.mean(on_road & ~in_route))
+        in_route = np.abs(self.corner_offsets) <= self._route_width / 2  # on the route's lanes: on the road
+        on_road = in_route if in_route.all() else self.road_map.on_road(self.corners)
+        off_share = 1.0 - np.count_nonzero(on_road) / 4.0
+        other_share = np.count_nonzero(on_road & ~in_route) / 4.0
         remaining = self._remaining()
         arrived = self.route_s >= self.destination_s - 0.5 and abs(self.lane_offset) <= self._route_width / 2
         info["collision"] |= collision
@@ -230,10 +234,10 @@ class RoundaboutTask(DrivingTask):
         info["success"] = bool(arrived and not info["collision"])
         info["steps"] += 1
         info["elapsed_time"] = float(physics.data.time)
-        info["distance"] += float(np.hypot(*(self.xy - previous_xy)))
+        info["distance"] += math.hypot(self.xy[0] - previous_xy[0], self.xy[1] - previous_xy[1])
         info["average_speed"] = info["distance"] / max(info["elapsed_time"], 1e-9)
         info["remaining_distance"] = remaining
-        v_kmh = float(np.clip(self.speed * 3.6, 0.0, SPEED_LIMIT_KMH))
+        v_kmh = min(max(self.speed * 3.6, 0.0), SPEED_LIMIT_KMH)
         terms = {
             "collision": -100.0 * collision,
             "progress": self.remaining - remaining,
