@@ -63,6 +63,7 @@ for _domain, _task in suite.ALL_TASKS:
     for _obs in ("features", "camera"):
         _case = _conformance_case(_domain, _task, _obs)
         globals()[_case.__name__] = _case
+del _case  # collected by name only
 
 
 def test_first_step_types():
