@@ -13,7 +13,8 @@ constraining of:
   * a stop line before a crosswalk where a pedestrian walks in their lane's band;
   * a stop line at a merge (a roundabout entry) while a circulating vehicle, or the ego, would reach the
     merge point within `accept_gap` seconds (gap acceptance; the entering vehicle yields).
-Speeds respect the lane speed limit and a lateral-acceleration cap in curves. Vehicles change to a
+Speeds respect the lane speed limit and a lateral-acceleration cap in curves; a Krauss-like safety cap
+keeps the s0 gap even when the obstacle ahead brakes at `max_decel` within the decision period. Vehicles change to a
 same-direction neighbour lane (across a broken line) at random when the target lane has room, moving over
 smoothly along `lane_change_length` metres. Vehicles leave the map at dead ends and respawn at the map's
 sources (lanes without predecessors) when the source is clear, so the count stays at its target.
@@ -233,6 +234,7 @@ class Traffic:
         self._t_plan = cfg.substep * np.arange(1, self.n_plan + 1)  # [s]
         self._hidden = np.column_stack([np.zeros(self.n), np.zeros(self.n), HIDDEN_Z - 5.0 * np.arange(self.n)])
         self.mocap_ids: np.ndarray | None = None
+        self._mocap: slice | np.ndarray | None = None  # where the slots are in data.mocap_*
         self.cpu_time = 0.0  # [s] wall time spent in `advance` (for benchmarks)
         self.stats = {"spawned": 0, "despawned": 0, "lane_changes": 0}
         self.generation = np.zeros(self.n, dtype=np.int64)  # per slot: +1 each time a road user (re)enters
@@ -256,7 +258,8 @@ class Traffic:
                 raise ValueError(f"body {prefix}{i} is not a mocap body")
             ids.append(int(model.body_mocapid[body.id]))
         self.mocap_ids = np.array(ids, dtype=np.int64)
-        self._contiguous = bool(np.array_equal(self.mocap_ids, np.arange(ids[0], ids[0] + self.n))) if ids else True
+        contiguous = not ids or np.array_equal(self.mocap_ids, np.arange(ids[0], ids[0] + self.n))
+        self._mocap = slice(ids[0] if ids else 0, (ids[0] if ids else 0) + self.n) if contiguous else self.mocap_ids
 
     def _reset_state(self) -> None:
         nv, npd = self.nv, self.np_
@@ -281,6 +284,7 @@ class Traffic:
         self._accumulated = 0.0
         self._current_pos = self._hidden.copy()
         self._current_yaw = np.zeros(self.n)
+        self._current_quat = _yaw_quat(self._current_yaw)
         self._current_speed = np.zeros(self.n)
 
     def _path_lengths(self, path: np.ndarray) -> np.ndarray:
@@ -324,6 +328,7 @@ class Traffic:
             self.ped_wait = rng.uniform(0.0, self.config.pedestrian_wait[1], self.np_)
             self.ped_speed = rng.uniform(self._walk_range[:, 0], self._walk_range[:, 1])
         self._current_pos, self._current_yaw, self._current_speed = self._poses_now()
+        self._current_quat = _yaw_quat(self._current_yaw)
         steps = int(round(warmup / self.config.decision_period))
         for _ in range(steps):
             self._decide()
@@ -399,6 +404,7 @@ class Traffic:
         """After an edit: the next `advance` decides from the edited present state."""
         self._obstacle_cache = None
         self._current_pos, self._current_yaw, self._current_speed = self._poses_now()
+        self._current_quat = _yaw_quat(self._current_yaw)
 
     # --- stepping --------------------------------------------------------------------------------------
     def advance(self, dt: float, ego: Callable[[], EgoState | None] | None = None,
@@ -406,9 +412,10 @@ class Traffic:
         """Move every road user by `dt` [s] (a whole number of substeps, usually one) and write the new
         poses into `data`'s mocap arrays if given. `ego` is called at each decision for the ego's state."""
         start = time.perf_counter()
-        self._accumulated += dt
-        n = int(self._accumulated / self.config.substep + 1e-6)
-        self._accumulated -= n * self.config.substep
+        substep = self.config.substep
+        accumulated = self._accumulated + dt
+        n = int(accumulated / substep + 1e-6)
+        self._accumulated = accumulated - n * substep
         for _ in range(n):  # usually once; loops over substeps, never over road users
             if self._plan is None or self._k >= self.n_plan:
                 if self._plan is not None:
@@ -418,30 +425,21 @@ class Traffic:
                 self._decide()
                 self._k = 0
             self._k += 1
-            self.time += self.config.substep
         if n:
-            k = self._k - 1
-            self._current_pos = self._plan.pos[k]
-            self._current_yaw = self._plan.yaw[k]
-            self._current_speed = self._plan.speed[k]
+            self.time += n * substep
+            plan, k = self._plan, self._k - 1
+            self._current_pos, self._current_yaw = plan.pos[k], plan.yaw[k]
+            self._current_speed, self._current_quat = plan.speed[k], plan.quat[k]
         if data is not None:
             self.write(data)
         self.cpu_time += time.perf_counter() - start
 
     def write(self, data: mujoco.MjData) -> None:
         """Write the current poses into data.mocap_pos / mocap_quat."""
-        if self.mocap_ids is None:
+        if self._mocap is None:
             raise RuntimeError("call Traffic.bind(model) before writing poses")
-        if self.n == 0:
-            return
-        quat = self._plan.quat[self._k - 1] if self._plan is not None and self._k else _yaw_quat(self._current_yaw)
-        if self._contiguous:
-            a = self.mocap_ids[0]
-            data.mocap_pos[a:a + self.n] = self._current_pos
-            data.mocap_quat[a:a + self.n] = quat
-        else:
-            data.mocap_pos[self.mocap_ids] = self._current_pos
-            data.mocap_quat[self.mocap_ids] = quat
+        data.mocap_pos[self._mocap] = self._current_pos
+        data.mocap_quat[self._mocap] = self._current_quat
 
     def _commit(self, k: int = -1) -> None:
         """Make the plan's substep k (default: its end) the new state."""
@@ -458,6 +456,7 @@ class Traffic:
         self._current_pos = self._plan.pos[k]
         self._current_yaw = self._plan.yaw[k]
         self._current_speed = self._plan.speed[k]
+        self._current_quat = self._plan.quat[k]
         self._plan = None
 
     def _commit_pedestrians(self, t_end: float) -> None:
@@ -842,6 +841,7 @@ class Traffic:
         self._current_yaw = self._current_yaw.copy()
         self._current_pos[self.vehicle_slots] = pos[0]
         self._current_yaw[self.vehicle_slots] = yaw[0]
+        self._current_quat = _yaw_quat(self._current_yaw)
 
     def _poses_now(self):
         """Poses of every slot at the current state (no plan)."""
