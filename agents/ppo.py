@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 import math
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -70,7 +71,13 @@ def train(config: dict, run: Run, resume_state: dict | None = None) -> None:
     cfg.setdefault("save_interval", 10**9)
     env = RslRlVecEnv(make_batched_env(config), reward_scale=float(config.get("reward_scale", 1.0)))
     env.seed(int(config.get("seed", 0)) + run.step)
-    runner = OnPolicyRunner(env, cfg, log_dir=None, device="cpu")  # no rsl-rl logger: we log ourselves
+    with warnings.catch_warnings():  # the duplicate-parameter warning of share_cnn_encoders, fixed below
+        warnings.filterwarnings("ignore", message="optimizer contains a parameter group with duplicate")
+        runner = OnPolicyRunner(env, cfg, log_dir=None, device="cpu")  # no rsl-rl logger: we log ourselves
+    params = list(runner.alg.optimizer.param_groups[0]["params"])
+    unique = list({id(p): p for p in params}.values())
+    if len(unique) < len(params):  # share_cnn_encoders lists the shared CNN twice: Adam would step it twice
+        runner.alg.optimizer = type(runner.alg.optimizer)(unique, lr=runner.alg.learning_rate)
     if resume_state is not None:
         runner.alg.load(resume_state, None, strict=True)
     losses: dict[str, float] = {}
