@@ -103,7 +103,7 @@ class TrafficConfig:
     kerb: float = 0.9  # [m] where pedestrians wait, beyond the end of the crosswalk
     pedestrian_wait: tuple[float, float] = (2.0, 10.0)  # [s] wait at the kerb before looking for a gap
     respawn: bool = True  # vehicles that left the map re-enter at the sources
-    decision_period: float = 0.4  # [s] behaviour updates (about a driver's reaction time)
+    decision_period: float = 0.5  # [s] behaviour updates (about a driver's reaction time)
     substep: float = 0.02  # [s] pose resolution (mocap written at this period)
 
 
@@ -235,6 +235,7 @@ class Traffic:
         self._hidden = np.column_stack([np.zeros(self.n), np.zeros(self.n), HIDDEN_Z - 5.0 * np.arange(self.n)])
         self.mocap_ids: np.ndarray | None = None
         self._mocap: slice | np.ndarray | None = None  # where the slots are in data.mocap_*
+        self._views = None  # (data, data.mocap_pos, data.mocap_quat) of the last `write`
         self.cpu_time = 0.0  # [s] wall time spent in `advance` (for benchmarks)
         self.stats = {"spawned": 0, "despawned": 0, "lane_changes": 0}
         self.generation = np.zeros(self.n, dtype=np.int64)  # per slot: +1 each time a road user (re)enters
@@ -438,8 +439,10 @@ class Traffic:
         """Write the current poses into data.mocap_pos / mocap_quat."""
         if self._mocap is None:
             raise RuntimeError("call Traffic.bind(model) before writing poses")
-        data.mocap_pos[self._mocap] = self._current_pos
-        data.mocap_quat[self._mocap] = self._current_quat
+        if self._views is None or self._views[0] is not data:  # the arrays are views into data: keep them
+            self._views = (data, data.mocap_pos, data.mocap_quat)
+        self._views[1][self._mocap] = self._current_pos
+        self._views[2][self._mocap] = self._current_quat
 
     def _commit(self, k: int = -1) -> None:
         """Make the plan's substep k (default: its end) the new state."""
@@ -533,9 +536,9 @@ class Traffic:
     def _spawn(self) -> bool:
         """Inactive vehicles re-enter at a random clear source (at most one per source per decision)."""
         m, cfg = self.map, self.config
-        idle = np.flatnonzero(~self.active)
-        if not len(idle) or not len(m.sources) or not cfg.respawn:
+        if self.active.all() or not len(m.sources) or not cfg.respawn:
             return False
+        idle = np.flatnonzero(~self.active)
         lane = np.where(self.active, self.path[:, 0], -1)
         near_start = (lane[:, None] == m.sources[None]) & ((self.s - self.length / 2)[:, None] < cfg.spawn_clear)
         clear = ~near_start.any(axis=0)
@@ -553,21 +556,29 @@ class Traffic:
         return True
 
     def _lane_changes(self) -> None:
-        """At most one lane change per decision: a random candidate whose target lane has room."""
+        """At most one lane change per decision: each vehicle beside a neighbour lane tries at the rates of
+        `lane_change_rate` (one random try per decision); the change happens if the target lane has room."""
         m, cfg = self.map, self.config
         lane0 = np.maximum(self.path[:, 0], 0)
-        rate = np.array(cfg.lane_change_rate) * cfg.decision_period
-        draw = self.rng.random((self.nv, 2)) < rate[None]
-        if not draw.any():
+        right, left = m.right[lane0], m.left[lane0]
+        # Not near a merge point (an entry joining the ring), where entering vehicles cut in, nor a diverge.
+        s, length = self.s, m.length[lane0]
+        near_merge = (((m.ends_at_merge[lane0] | (m.n_successors[lane0] > 1)) & (s > length - 12.0))
+                      | (m.starts_at_merge[lane0] & (s < 8.0)))  # ... or where vehicles leave it
+        ok = (self.active & ((right >= 0) | (left >= 0)) & (self.lc_dist >= cfg.lane_change_length)
+              & (s > 1.0) & (self.lead_gap > cfg.lane_change_length) & ~near_merge)
+        rows = np.flatnonzero(ok)
+        if not len(rows):
             return
-        targets = np.column_stack([m.right[lane0], m.left[lane0]])  # (NV, 2)
-        ok = draw & (targets >= 0) & (self.active & (self.lc_dist >= cfg.lane_change_length)
-                                      & (self.s > 1.0) & (self.lead_gap > cfg.lane_change_length))[:, None]
-        if not ok.any():
+        rate_right, rate_left = cfg.lane_change_rate
+        u = self.rng.random(3)
+        if u[0] >= (rate_right + rate_left) * cfg.decision_period * len(rows):
             return
-        cand = np.argwhere(ok)
-        row, side = cand[self.rng.integers(len(cand))]
-        target = int(targets[row, side])
+        row = int(rows[int(u[1] * len(rows))])
+        side = 0 if u[2] * (rate_right + rate_left) < rate_right else 1  # 0: to the right, 1: to the left
+        target = int(right[row] if side == 0 else left[row])
+        if target < 0:
+            return
         s_new = self.s[row] * m.length[target] / m.length[lane0[row]]
         # The move must be over before any junction lane (an exit): the lane after the target goes on.
         after = int(self._choose_successor(np.array([target]))[0])
@@ -579,6 +590,8 @@ class Traffic:
         # Every other vehicle's coordinate along the target lane (via its own path), if it passes there,
         # or beyond its end along the lane that follows it (on it or coming to it from another lane).
         coord = np.where(np.isfinite(offset[:, after]), m.length[target] + s - offset[:, after], np.nan)
+        leaving = np.isin(ctx["lane"], m.successors[target, : m.n_successors[target]])  # e.g. just exited
+        coord = np.where(leaving, m.length[target] + s, coord)
         coord = np.where(np.isfinite(offset[:, target]), s - offset[:, target], coord)
         coord[row] = np.nan
         gap_ahead = coord - s_new - (length + self.length[row]) / 2
@@ -700,7 +713,7 @@ class Traffic:
             conflict = self._merge_conflicts(ctx, f["accept_gap"])  # (Y,)
             if conflict.any():
                 stop = offset[:, m.yield_lane] + m.yield_stop[None] - front[:, None]
-                gap[:, c3:] = np.where(conflict[None] & (stop > -0.3), stop, np.inf)
+                gap[:, c3:] = np.where(conflict[None] & (stop > -1.0), stop, np.inf)  # < 1 m past: still stop
 
         finite = gap < np.inf
         self.lead_gap = gap.min(axis=1) if len(rows) == self.nv else self.lead_gap
@@ -715,15 +728,18 @@ class Traffic:
                                            + 2 * m.anticipation * np.maximum(to_end, 0)), np.inf)
         v0 = np.minimum(np.minimum(f["v0"], m.speed_limit[lane0]), np.minimum(vcurve, vnext))
         acc = f["a"] * (1.0 - (v / np.maximum(v0, 0.1)) ** 4 - interaction)
+        tau = cfg.decision_period
+        acc = np.where(v <= v0, np.minimum(acc, (v0 - v) / tau), acc)  # no overshoot of v0 in one period
         # Safety cap (Krauss-like): whatever the obstacle does (braking at max_decel), the follower can
         # still stop s0 short of it after this decision period: with the end speed w of the period,
         # distance (v + w) tau / 2 + w^2 / (2 b) <= gap - s0 + v_lead^2 / (2 b).
-        b, tau = cfg.max_decel, cfg.decision_period
+        b = cfg.max_decel
         v_lead = np.maximum(lead, 0.0)
         room = np.where(finite, gap - s0[None] + v_lead * v_lead / (2 * b), np.inf).min(axis=1)
         disc = 0.25 * tau * tau + 2.0 * (room - 0.5 * v * tau) / b
         w = np.where(disc > 0, b * (np.sqrt(np.maximum(disc, 0.0)) - 0.5 * tau), 0.0)
-        acc = np.minimum(acc, (np.maximum(w, 0.0) - v) / tau)
+        # no positive end speed fits: stop within the room (the period's motion stops at v = 0)
+        acc = np.minimum(acc, np.where(w > 0, (w - v) / tau, -v * v / (2 * np.maximum(room, 1e-3))))
         return np.maximum(np.minimum(acc, f["a"]), -cfg.max_decel)
 
     def _obstacles(self):

