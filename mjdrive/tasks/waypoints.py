@@ -47,6 +47,7 @@ class WaypointTask(DrivingTask):
         waypoint_spacing: float = 2.0,  # [m]
         visible_waypoints: int = 3,
         image_size: int = 128,  # [px]
+        start_noise: tuple[float, float] = (0.3, 0.05),  # ([m] lateral, [rad] heading) uniform half-ranges
         random=None,
     ):
         if observation not in OBSERVATIONS:
@@ -57,6 +58,7 @@ class WaypointTask(DrivingTask):
         self.waypoint_spacing = waypoint_spacing
         self.visible_waypoints = visible_waypoints
         self.image_size = image_size
+        self.start_noise = start_noise
         self.spawn_lanes = None if routes else [lane for lane, _ in roads.spawn_points(road_map)]
         self.tracker: RouteTracker | None = None
         self.route_lane: Lane | None = None
@@ -83,7 +85,12 @@ class WaypointTask(DrivingTask):
         self.route_s: float | None = None  # unknown until the first projection over the whole route
         # The car starts wholly on the road, on a waypoint; the route's waypoints are the ones ahead of it.
         start = int(np.ceil((0.5 * self.params.length + 1.0) / self.waypoint_spacing))
-        self.vehicle.reset(physics.raw_data, points[start, 0], points[start, 1], headings[start])
+        # A small random offset and yaw at the start, so that evaluation episodes differ (set (0, 0) for none).
+        lateral = self.random.uniform(-1.0, 1.0) * self.start_noise[0]
+        yaw = headings[start] + self.random.uniform(-1.0, 1.0) * self.start_noise[1]
+        x = points[start, 0] - lateral * np.sin(headings[start])
+        y = points[start, 1] + lateral * np.cos(headings[start])
+        self.vehicle.reset(physics.raw_data, x, y, yaw)
         self.tracker = RouteTracker(points[start + 1 :], headings[start + 1 :], REACH_RADIUS)
         self.reset_safety_sensors(physics)
         self.info = {
