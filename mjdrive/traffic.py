@@ -94,9 +94,11 @@ class TrafficConfig:
     lateral_accel: float = 2.0  # [m/s^2] curve speed: v <= sqrt(lateral_accel / curvature)
     accept_gap: float = 3.5  # [s] an entering vehicle goes if no priority vehicle reaches the merge sooner
     merge_clearance: float = 5.0  # [m] ... and none is nearer than this (bumper to merge point)
+    merge_speed: float = 3.0  # [m/s] slower circulating vehicles count as this fast in the gap check
+    yield_speed: float = 2.5  # [m/s] entering vehicles reach their yield line no faster than this
     corridor_range: float = 25.0  # [m] how far ahead the corridor check looks
     corridor_margin: float = 0.3  # [m] lateral margin of the corridor
-    lane_change_rate: tuple[float, float] = (0.5, 0.2)  # [1/s] to the right, to the left neighbour
+    lane_change_rate: tuple[float, float] = (0.5, 0.5)  # [1/s] to the right, to the left neighbour
     lane_change_length: float = 15.0  # [m] distance over which a lane change moves across
     spawn_clear: float = 14.0  # [m] a source spawns only if nothing is this close to its start
     crosswalk_margin: float = 1.0  # [m] vehicles stop this far before a crosswalk / a pedestrian's band
@@ -287,10 +289,6 @@ class Traffic:
         self._current_yaw = np.zeros(self.n)
         self._current_quat = _yaw_quat(self._current_yaw)
         self._current_speed = np.zeros(self.n)
-
-    def _path_lengths(self, path: np.ndarray) -> np.ndarray:
-        """Lengths (.., PATH) [m] of the lanes in `path`; inf for -1 (beyond a dead end)."""
-        return np.where(path >= 0, self.map.length[np.maximum(path, 0)], np.inf)
 
     def _choose_successor(self, lane: np.ndarray) -> np.ndarray:
         """A uniformly random successor of each lane (-1 for a dead end or -1)."""
@@ -561,10 +559,12 @@ class Traffic:
         m, cfg = self.map, self.config
         lane0 = np.maximum(self.path[:, 0], 0)
         right, left = m.right[lane0], m.left[lane0]
-        # Not near a merge point (an entry joining the ring), where entering vehicles cut in, nor a diverge.
+        # Not near a merge point (an entry joining the ring), where entering vehicles cut in, and not to the
+        # right just before a diverge (an exit), where exiting vehicles slow down.
         s, length = self.s, m.length[lane0]
-        near_merge = (((m.ends_at_merge[lane0] | (m.n_successors[lane0] > 1)) & (s > length - 12.0))
-                      | (m.starts_at_merge[lane0] & (s < 8.0)))  # ... or where vehicles leave it
+        near_merge = ((m.ends_at_merge[lane0] & (s > length - 12.0)) | (m.starts_at_merge[lane0] & (s < 8.0)))
+        near_exit = (m.n_successors[lane0] > 1) & (s > length - 12.0)  # moving right in front of an exit
+        right = np.where(near_exit, -1, right)
         ok = (self.active & ((right >= 0) | (left >= 0)) & (self.lc_dist >= cfg.lane_change_length)
               & (s > 1.0) & (self.lead_gap > cfg.lane_change_length) & ~near_merge)
         rows = np.flatnonzero(ok)
@@ -582,8 +582,10 @@ class Traffic:
         s_new = self.s[row] * m.length[target] / m.length[lane0[row]]
         # The move must be over before any junction lane (an exit): the lane after the target goes on.
         after = int(self._choose_successor(np.array([target]))[0])
-        if after < 0 or m.in_junction[after] or (m.length[target] - s_new + m.length[after]
-                                                  < cfg.lane_change_length):
+        if after < 0 or m.in_junction[after]:
+            return
+        beyond = m.successors[after, : m.n_successors[after]]
+        if m.length[target] - s_new + m.length[after] < cfg.lane_change_length and m.in_junction[beyond].any():
             return
         ctx = self._context()
         s, v, length, offset = ctx["s"], ctx["v"], ctx["length"], ctx["offset"]
@@ -665,8 +667,8 @@ class Traffic:
         xy_o, yaw_o, v_o, hl_o, hw_o, idx_o = self._obstacles()
         lane_a = ctx["lane"]
         n_a, n_o, n_k, n_y = len(lane_a), len(xy_o), len(m.cross_lane), len(m.yield_lane)
-        c1, c2, c3 = n_a, n_a + n_o, n_a + n_o + n_k
-        gap = np.full((len(s), c3 + n_y), np.inf)
+        c1, c2, c3, c4 = n_a, n_a + n_o, n_a + n_o + n_k, n_a + n_o + n_k + n_y
+        gap = np.full((len(s), c4 + n_y), np.inf)
         lead = np.zeros_like(gap)
         s0 = np.full(gap.shape[1], cfg.stop_gap)
         s0[:c2] = cfg.min_gap
@@ -713,7 +715,17 @@ class Traffic:
             conflict = self._merge_conflicts(ctx, f["accept_gap"])  # (Y,)
             if conflict.any():
                 stop = offset[:, m.yield_lane] + m.yield_stop[None] - front[:, None]
-                gap[:, c3:] = np.where(conflict[None] & (stop > -1.0), stop, np.inf)  # < 1 m past: still stop
+                gap[:, c3:c4] = np.where(conflict[None] & (stop > -0.5), stop, np.inf)  # < 0.5 m past: stop
+            # ... and circulating vehicles let an entering vehicle that has passed its yield line in.
+            on_entry = ctx["lane"][:, None] == m.yield_lane[None]  # (A, Y)
+            past = (ctx["s"] + ctx["length"] / 2)[:, None] > m.yield_stop[None] + 0.5
+            committed = (on_entry & past).any(axis=0)
+            if committed.any():
+                to_merge = offset[:, m.yield_merge]  # (F, Y)
+                through = offset[:, m.yield_lane] < np.inf
+                stop = to_merge - cfg.merge_clearance - front[:, None]
+                keep_out = committed[None] & ~through & (to_merge > 0) & (stop > -0.5)
+                gap[:, c4:] = np.where(keep_out, stop, np.inf)
 
         finite = gap < np.inf
         self.lead_gap = gap.min(axis=1) if len(rows) == self.nv else self.lead_gap
@@ -727,6 +739,11 @@ class Traffic:
         vnext = np.where(nxt >= 0, np.sqrt(m.entry_speed[np.maximum(nxt, 0)] ** 2
                                            + 2 * m.anticipation * np.maximum(to_end, 0)), np.inf)
         v0 = np.minimum(np.minimum(f["v0"], m.speed_limit[lane0]), np.minimum(vcurve, vnext))
+        if n_y:  # approach yield lines slowly enough to stop at them when a gap closes
+            to_line = (offset[:, m.yield_lane] + m.yield_stop[None] - front[:, None]).min(axis=1)
+            ahead_line = (to_line > -0.5) & (to_line < np.inf)
+            v0 = np.where(ahead_line, np.minimum(v0, np.sqrt(cfg.yield_speed**2 + 2 * 1.5 * np.maximum(to_line, 0))),
+                          v0)
         acc = f["a"] * (1.0 - (v / np.maximum(v0, 0.1)) ** 4 - interaction)
         tau = cfg.decision_period
         acc = np.where(v <= v0, np.minimum(acc, (v0 - v) / tau), acc)  # no overshoot of v0 in one period
@@ -782,10 +799,19 @@ class Traffic:
         to_merge = offset[:, merge]  # (A, Y) 0 for agents already on the merged lane
         via = np.isfinite(offset[:, m.yield_lane])
         dist = np.where(via | (to_merge <= 0), np.inf, to_merge - (s + length / 2)[:, None])  # (A, Y)
-        soon = dist - cfg.merge_clearance < v[:, None] * accept_gap
+        # slow or stopped circulating vehicles may speed up: count them at `merge_speed` at least
+        soon = dist - cfg.merge_clearance < np.maximum(v, cfg.merge_speed)[:, None] * accept_gap
         # Agents already on the merged lane whose rear is still near its start.
         on_start = (ctx["lane"][:, None] == merge[None]) & ((s - length / 2)[:, None] < cfg.merge_clearance + 3.0)
-        return (soon | on_start).any(axis=0)
+        conflict = (soon | on_start).any(axis=0)
+        # Vehicles moving over to another lane still occupy the old one: judge them by straight distance.
+        changing = np.flatnonzero(self.active & (self.lc_dist < cfg.lane_change_length))
+        if len(changing):
+            xy = self._current_pos[self.vehicle_slots[changing], :2]
+            near = np.hypot(xy[:, None, 0] - m.merge_xy[None, :, 0], xy[:, None, 1] - m.merge_xy[None, :, 1])
+            reach = np.maximum(self.v[changing], cfg.merge_speed)[:, None] * accept_gap + cfg.merge_clearance
+            conflict |= (near - self.length[changing, None] / 2 < reach).any(axis=0)
+        return conflict
 
     # --- poses -------------------------------------------------------------------------------------------
     def _make_plan(self, start: np.ndarray | None = None) -> _Plan:

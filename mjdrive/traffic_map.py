@@ -13,7 +13,7 @@ from mjdrive.roads import Marking, RoadMap
 
 LANE_GAP = 1.0  # [m] gap between consecutive lanes in the flat arc-length coordinate
 REFERENCE_HALF_SIZE = (2.4, 1.0)  # [m] half length and half width of the largest vehicle (stop lines)
-STOP_CLEARANCE = 0.6  # [m] a vehicle waiting at a merge stop line stays this far outside the priority lane
+STOP_CLEARANCE = 1.0  # [m] a vehicle waiting at a merge stop line stays this far outside the priority lane
 SPAWN_STEP = 3.0  # [m] candidate spawn points along each lane
 SPAWN_MARGIN = 5.0  # [m] from the lane ends
 
@@ -192,10 +192,12 @@ class TrafficMap:
         self.yield_lane = np.array([r[0] for r in rows], dtype=np.int64)  # entering lane (-1: none)
         self.yield_merge = np.array([r[1] for r in rows], dtype=np.int64)  # the lane it joins
         self.yield_stop = np.array([r[2] for r in rows])  # [m] front-bumper stop position along it
+        self.merge_xy = np.array([rm.lanes[r[1]].centre[0] if r[1] >= 0 else (0.0, 0.0) for r in rows])  # [m]
         if self.yield_lane[0] < 0:
             self.yield_lane = self.yield_lane[:0]
             self.yield_merge = self.yield_merge[:0]
             self.yield_stop = self.yield_stop[:0]
+            self.merge_xy = self.merge_xy[:0]
 
     # --- crosswalks --------------------------------------------------------------------------------------
     def _crossings(self) -> None:
