@@ -12,7 +12,10 @@ constraining of:
     pedestrians, vehicles changing lane or leaving the ring;
   * a stop line before a crosswalk where a pedestrian walks in their lane's band;
   * a stop line at a merge (a roundabout entry) while a circulating vehicle, or the ego, would reach the
-    merge point within `accept_gap` seconds (gap acceptance; the entering vehicle yields).
+    merge point within `accept_gap` seconds (gap acceptance; the entering vehicle yields, approaching its
+    yield line slowly enough to stop there);
+  * for circulating vehicles, a point before the merge while an entering vehicle that has passed its yield
+    line is still coming in.
 Speeds respect the lane speed limit and a lateral-acceleration cap in curves; a Krauss-like safety cap
 keeps the s0 gap even when the obstacle ahead brakes at `max_decel` within the decision period. Vehicles change to a
 same-direction neighbour lane (across a broken line) at random when the target lane has room, moving over
@@ -715,11 +718,12 @@ class Traffic:
             conflict = self._merge_conflicts(ctx, f["accept_gap"])  # (Y,)
             if conflict.any():
                 stop = offset[:, m.yield_lane] + m.yield_stop[None] - front[:, None]
-                gap[:, c3:c4] = np.where(conflict[None] & (stop > -0.5), stop, np.inf)  # < 0.5 m past: stop
-            # ... and circulating vehicles let an entering vehicle that has passed its yield line in.
+                holding = (stop > -0.5) | ((stop > -1.0) & (v < 1.0)[:, None])  # not yet committed
+                gap[:, c3:c4] = np.where(conflict[None] & holding, stop, np.inf)
+            # ... and circulating vehicles let in an entering vehicle committed past its yield line.
             on_entry = ctx["lane"][:, None] == m.yield_lane[None]  # (A, Y)
-            past = (ctx["s"] + ctx["length"] / 2)[:, None] > m.yield_stop[None] + 0.5
-            committed = (on_entry & past).any(axis=0)
+            past = (ctx["s"] + ctx["length"] / 2)[:, None] - m.yield_stop[None]
+            committed = (on_entry & ((past > 1.0) | ((past > 0.5) & (ctx["v"] >= 1.0)[:, None]))).any(axis=0)
             if committed.any():
                 to_merge = offset[:, m.yield_merge]  # (F, Y)
                 through = offset[:, m.yield_lane] < np.inf
