@@ -1,0 +1,62 @@
+"""Does a camera agent use its image? Greedy episodes with the real image, a black one, and the first
+frame frozen; the scalar observations (d, θ, v or the destination) are left as they are.
+
+    python tools/ablate_image.py results/checkpoints/ppo_camera_straight.pt --episodes 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from agents.common import split_task  # noqa: E402
+from agents.evaluate import load_agent  # noqa: E402
+from mjdrive.envs import make_env  # noqa: E402
+from mjdrive.envs.batched import ObservationLayout  # noqa: E402
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("checkpoint")
+    parser.add_argument("--task", default=None, help="DOMAIN/TASK (default: the checkpoint's)")
+    parser.add_argument("--episodes", type=int, default=1)
+    parser.add_argument("--seed", type=int, default=10_000)
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)
+    agent, payload = load_agent(args.checkpoint)
+    config = payload["config"]
+    domain, task = split_task(args.task or config["task"])
+    env = make_env(domain, task, actions=config.get("actions", "continuous"), **config.get("task_kwargs", {}))
+    key = ObservationLayout(env.observation_space).image_key
+    if key is None:
+        raise SystemExit("this agent has no image observation")
+    print("| image | episode | steps | route completion | success |\n| --- | ---: | ---: | ---: | --- |")
+    for mode in ("real", "black", "frozen first frame"):
+        for episode in range(args.episodes):
+            obs, info = env.reset(seed=args.seed + episode)
+            first, steps = obs[key].copy(), 0
+            while True:
+                seen = dict(obs)
+                if mode == "black":
+                    seen[key] = np.zeros_like(obs[key])
+                elif mode == "frozen first frame":
+                    seen[key] = first
+                action = agent.act({k: v[None] for k, v in seen.items()})[0]
+                obs, _, terminated, truncated, info = env.step(action)
+                steps += 1
+                if terminated or truncated:
+                    break
+            print(f"| {mode} | {episode} | {steps} | {100 * info.get('route_completion', np.nan):.1f}% "
+                  f"| {info.get('success')} |")
+    env.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
