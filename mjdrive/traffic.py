@@ -17,10 +17,11 @@ constraining of:
   * for circulating vehicles, a point before the merge while an entering vehicle that has passed its yield
     line is still coming in.
 Speeds respect the lane speed limit and a lateral-acceleration cap in curves; a Krauss-like safety cap
-keeps the s0 gap even when the obstacle ahead brakes at `max_decel` within the decision period. Vehicles change to a
-same-direction neighbour lane (across a broken line) at random when the target lane has room, moving over
-smoothly along `lane_change_length` metres. Vehicles leave the map at dead ends and respawn at the map's
-sources (lanes without predecessors) when the source is clear, so the count stays at its target.
+keeps the s0 gap even when the obstacle ahead brakes at `max_decel` within the decision period. Vehicles
+change to a same-direction neighbour lane (across a broken line) at random when the target lane has room
+(not next to merges and exits), moving over smoothly along `lane_change_length` metres. Vehicles leave the
+map at dead ends and respawn at the map's sources (lanes without predecessors) when the source is clear,
+so the count stays at its target.
 
 Pedestrians shuttle across their crosswalk on one of three tracks (so two never overlap): they wait at the
 kerb for a random time, then for a gap (no vehicle, ego included, that could not stop comfortably before
