@@ -35,14 +35,19 @@ def load_agent(path: str | Path) -> tuple[Any, dict]:
 
 
 def end_reason(info: dict, terminated: bool, truncated: bool) -> str:
-    for key in ("collision", "lane_invasion", "off_road"):
-        if info.get(key):
-            return key
+    """Why the episode ended, from the task's info flags."""
+    if info.get("collision"):
+        return "collision"
     if info.get("physics_error"):
         return "physics_error"
     if info.get("success"):
         return "arrived"
-    return "time_limit" if truncated else ("terminated" if terminated else "running")
+    if truncated:
+        return "time_limit"
+    for key in ("lane_invasion", "off_road"):
+        if info.get(key):
+            return key
+    return "terminated" if terminated else "running"
 
 
 def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None, seed: int = 10_000,
@@ -72,7 +77,7 @@ def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None
             "episode": episode, "seed": seed + episode, "reward": round(total, 2), "steps": steps,
             "time_s": round(elapsed, 2), "distance_m": round(distance, 2),
             "speed_m_s": round(distance / elapsed, 3) if elapsed > 0 else 0.0,
-            "route_completion": round(float(info.get("route_completion", np.nan)), 4),
+            "route_completion": round(float(info["route_completion"]), 4) if "route_completion" in info else None,
             "success": bool(info.get("success", False)), "collision": bool(info.get("collision", False)),
             "end": end_reason(info, terminated, truncated),
         })
@@ -87,15 +92,16 @@ def summarize(rows: list[dict]) -> dict[str, float]:
     def mean(key: str) -> float:
         return float(np.mean([row[key] for row in rows]))
 
-    completion = [row["route_completion"] for row in rows]
+    completion = [row["route_completion"] for row in rows if row["route_completion"] is not None] or [np.nan]
     return {
         "avg_reward": round(mean("reward"), 2), "avg_time_s": round(mean("time_s"), 2),
         "avg_speed_m_s": round(mean("speed_m_s"), 3), "avg_distance_m": round(mean("distance_m"), 2),
         "avg_steps": round(mean("steps"), 1), "success_pct": round(100 * mean("success"), 1),
         "collision_pct": round(100 * mean("collision"), 1),
-        "route_completion_mean": round(float(np.mean(completion)), 4),
-        "route_completion_min": round(float(np.min(completion)), 4),
-        "route_completion_max": round(float(np.max(completion)), 4),
+        **({} if np.isnan(completion[0]) else {
+            "route_completion_mean": round(float(np.mean(completion)), 4),
+            "route_completion_min": round(float(np.min(completion)), 4),
+            "route_completion_max": round(float(np.max(completion)), 4)}),
     }
 
 
@@ -135,7 +141,8 @@ def to_markdown(result: dict) -> str:
         "| ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |",
     ]
     for row in result["rows"]:
-        lines.append(f"| {row['episode']} | {row['seed']} | {100 * row['route_completion']:.1f}% | "
+        completion = "-" if row["route_completion"] is None else f"{100 * row['route_completion']:.1f}%"
+        lines.append(f"| {row['episode']} | {row['seed']} | {completion} | "
                      f"{row['reward']:.1f} | {row['steps']} | {row['time_s']:.1f} | {row['distance_m']:.1f} "
                      f"| {row['end']} |")
     return "\n".join(lines)
