@@ -109,7 +109,7 @@ class TrafficConfig:
     kerb: float = 0.9  # [m] where pedestrians wait, beyond the end of the crosswalk
     pedestrian_wait: tuple[float, float] = (2.0, 10.0)  # [s] wait at the kerb before looking for a gap
     respawn: bool = True  # vehicles that left the map re-enter at the sources
-    decision_period: float = 0.5  # [s] behaviour updates (about a driver's reaction time)
+    decision_period: float = 0.6  # [s] behaviour updates (about a driver's reaction time)
     substep: float = 0.02  # [s] pose resolution (mocap written at this period)
 
 
