@@ -133,3 +133,25 @@ def test_evaluate_reports_route_completion(tmp_path):
     assert result["rows"][0]["end"] in ("time_limit", "lane_invasion", "off_road", "collision", "arrived")
     markdown = to_markdown(result)
     assert "route completion mean" in markdown and markdown.count("\n| ") >= 4
+
+
+def test_rsl_rl_vecenv_groups_actions_and_time_outs():
+    from mjdrive.envs.rsl_rl_env import RslRlVecEnv
+
+    batched = BatchedEnv("waypoints", "straight", num_envs=2, observation="camera", image_size=32, time_limit=0.5)
+    env = RslRlVecEnv(batched, reward_scale=0.5)
+    obs = env.get_observations()
+    assert obs.batch_size == torch.Size([2]) and obs["policy"].shape == (2, 3)
+    assert obs["image"].shape == (2, 3, 32, 32) and 0.0 <= obs["image"].min() and obs["image"].max() <= 1.0
+    assert env.num_actions == 3 and env.max_episode_length == 5
+    np.testing.assert_allclose(env.env_actions(torch.tensor([[-1.0, 0.0, -1.0], [1.0, 2.0, 0.0]])),
+                               [[0.0, 0.0, 0.0], [1.0, 1.0, 0.5]])  # clipped, mapped onto the bounds
+    for step in range(5):
+        obs, rewards, dones, extras = env.step(torch.zeros(2, 3))
+        assert rewards.dtype == torch.float32 and rewards.shape == (2,)
+        assert bool(dones.any()) == (step == 4) and torch.equal(extras["time_outs"], dones.bool())
+    assert "/episode/route_completion" in extras["log"] and len(env.completed) == 2
+    assert env.episode_length_buf.tolist() == [0, 0]
+    env.close()
+    with pytest.raises(ValueError, match="continuous actions"):
+        RslRlVecEnv(BatchedEnv("waypoints", "straight", num_envs=1, actions="table1"))
