@@ -8,6 +8,7 @@ An off-policy agent provides:
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import numpy as np
@@ -24,7 +25,7 @@ def run_off_policy(agent: Any, env: BatchedEnv, run: Run, buffer: ReplayBuffer, 
     updates_per_step = float(hp.get("updates_per_step", 1.0))  # gradient steps per env transition
     reward_scale = float(hp.get("reward_scale", 1.0))
     log_every = int(hp.get("log_every", 1000))
-    start_step, debt, next_log = run.step, 0.0, run.step + log_every
+    start_step, start_time, debt, next_log = run.step, time.perf_counter(), 0.0, run.step + log_every
     losses: dict[str, list[float]] = {}
     while not run.done:
         stored, command = agent.explore(obs, run.step)
@@ -41,7 +42,7 @@ def run_off_policy(agent: Any, env: BatchedEnv, run: Run, buffer: ReplayBuffer, 
                 debt -= 1.0
         if run.step >= next_log:
             run.scalars({name: float(np.mean(values)) for name, values in losses.items()})
-            run.scalar("perf/steps_per_s", (run.step - start_step) / max(1e-9, run.bar.format_dict["elapsed"]))
+            run.scalar("perf/steps_per_s", (run.step - start_step) / (time.perf_counter() - start_time))
             losses.clear()
             next_log += log_every
         if run.checkpoint_due():
