@@ -80,3 +80,31 @@ def test_observation_layout_scales_features_and_transposes_images():
     assert features.shape == (2, 3) and features.dtype == np.float32
     np.testing.assert_allclose(features[:, 2], obs["waypoint_distance"][:, 0] / 10.0)
     env.close()
+
+
+@pytest.mark.parametrize("backend", ["threads", "rollout"])
+def test_roundabout_traffic_moves_between_substeps_as_in_the_single_env(backend):
+    """The roundabout moves its traffic in Physics.substep_callback: the batched physics call must too."""
+    actions = _actions(25, seed=1)
+    env = make_env("roundabout", "d120", observation="features")
+    env.reset(seed=4)
+    users = env.unwrapped.task.road_users()
+    reference = []
+    for action in actions:
+        obs, reward, terminated, truncated, _ = env.step(action)
+        reference.append((obs["road_users"].copy(), env.unwrapped.task.road_users().poses.copy(), reward))
+        if terminated or truncated:
+            break
+    first, last = users.poses, env.unwrapped.task.road_users().poses
+    assert first.shape != last.shape or np.abs(first - last).max() > 1.0  # [m] the traffic moved
+    batched = BatchedEnv("roundabout", "d120", num_envs=2, nthread=2, backend=backend, observation="features")
+    batched.reset(seed=4)
+    for action, (road_users, poses, reward) in zip(actions, reference, strict=False):
+        obs, rewards, *_ = batched.step(np.stack([action, action]))
+        if backend == "threads":  # bit for bit
+            np.testing.assert_array_equal(obs["road_users"][0], road_users)
+            np.testing.assert_array_equal(batched.bases[0].task.road_users().poses, poses)
+            assert rewards[0] == np.float32(reward)
+        else:  # the rollout backend does not carry the solver warm start: close, not identical
+            assert batched.bases[0].task.road_users().poses.shape == poses.shape
+    batched.close()

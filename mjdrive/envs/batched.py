@@ -13,6 +13,7 @@ runs every task's `before_step`, advances all physics in ONE call (`backend`), t
 Backends for the physics call:
   "serial":  `mj_step` on each copy in turn (reference).
   "threads": `mj_step` on each copy in a thread pool of `nthread` (MuJoCo releases the GIL in `mj_step`).
+A task's `Physics.substep_callback` (the roundabout's traffic) runs between chunks as in `Physics.step`.
   "rollout": `mujoco.rollout` over all copies (state in/out as arrays, ctrl and mocap as controls). The state
              is written back with `mj_setState` + `mj_forward`, so contacts are those of the final state and
              the solver warm start is not carried over: close to, but not bit-identical with, the others.
@@ -91,9 +92,8 @@ class BatchedEnv:
             self._scratch = [mujoco.MjData(self._models[0]) for _ in range(self.nthread)]
             model = self._models[0]
             self._state = np.empty((num_envs, mujoco.mj_stateSize(model, _STATE_SPEC)))
-            self._control = np.empty((num_envs, self.n_sub_steps, mujoco.mj_stateSize(model, _CONTROL_SPEC)))
+            self._control_size = mujoco.mj_stateSize(model, _CONTROL_SPEC)
             self._warmstart = np.empty((num_envs, model.nv))
-            self._states_out = np.empty((num_envs, self.n_sub_steps, self._state.shape[1]))
         self._obs: list[dict[str, np.ndarray]] = []
         self.episode_returns = np.zeros(num_envs)
         self.episode_lengths = np.zeros(num_envs, np.int64)
@@ -166,18 +166,38 @@ class BatchedEnv:
         return command
 
     def _step_physics(self) -> None:
-        n_sub = self.n_sub_steps
+        """Advance every copy by one control period. A task's `Physics.substep_callback` (e.g. the
+        roundabout's traffic) runs after each chunk of `substep_interval` steps, as in `Physics.step`."""
+        physics = [base.dm_env.physics for base in self.bases]
+        callbacks = [p.substep_callback for p in physics]
+        if not any(callbacks):
+            self._step_all(self.n_sub_steps)
+            return
+        chunk = max(1, int(physics[0].substep_interval))
+        dt = float(self._models[0].opt.timestep)  # [s]
+        done = 0
+        while done < self.n_sub_steps:
+            n = min(chunk, self.n_sub_steps - done)
+            self._step_all(n)
+            for p, callback in zip(physics, callbacks, strict=True):
+                if callback is not None:
+                    callback(p, n * dt)
+            done += n
+
+    def _step_all(self, n_sub: int) -> None:
+        """`n_sub` physics steps of every copy in one call of the backend."""
         if self.backend == "rollout":
+            control = np.empty((self.num_envs, n_sub, self._control_size))
+            states = np.empty((self.num_envs, n_sub, self._state.shape[1]))
             for i, (m, d) in enumerate(zip(self._models, self._datas, strict=True)):
                 mujoco.mj_getState(m, d, self._state[i], _STATE_SPEC)
-                mujoco.mj_getState(m, d, self._control[i, 0], _CONTROL_SPEC)
-                self._control[i, 1:] = self._control[i, 0]  # held over the control period
+                mujoco.mj_getState(m, d, control[i, 0], _CONTROL_SPEC)
+                control[i, 1:] = control[i, 0]  # ctrl and mocap held over the chunk
                 self._warmstart[i] = d.qacc_warmstart
-            self._rollout.rollout(self._models, self._scratch, self._state, self._control,
-                                  control_spec=_CONTROL_SPEC, nstep=n_sub, initial_warmstart=self._warmstart,
-                                  state=self._states_out, skip_checks=True)
+            self._rollout.rollout(self._models, self._scratch, self._state, control, control_spec=_CONTROL_SPEC,
+                                  nstep=n_sub, initial_warmstart=self._warmstart, state=states, skip_checks=True)
             for i, (m, d) in enumerate(zip(self._models, self._datas, strict=True)):
-                mujoco.mj_setState(m, d, self._states_out[i, -1], _STATE_SPEC)
+                mujoco.mj_setState(m, d, states[i, -1], _STATE_SPEC)
                 mujoco.mj_forward(m, d)
         elif self._pool is not None:
             pairs = zip(self._models, self._datas, strict=True)
