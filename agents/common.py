@@ -82,7 +82,8 @@ def make_batched_env(config: dict, num_envs: int | None = None, **overrides) -> 
     task_kwargs = {**config.get("task_kwargs", {}), **overrides}
     return BatchedEnv(domain, task, num_envs=num_envs or config.get("num_envs", 1),
                       actions=config.get("actions", "continuous"), nthread=config.get("nthread", 1),
-                      backend=config.get("backend", "threads"), **task_kwargs)
+                      backend=config.get("backend", "threads"), record_dir=config.get("record_dir"),
+                      **task_kwargs)
 
 
 def bounded_action_map(space: gym.spaces.Box) -> tuple[torch.Tensor, torch.Tensor]:

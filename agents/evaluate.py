@@ -51,14 +51,20 @@ def end_reason(info: dict, terminated: bool, truncated: bool) -> str:
 
 
 def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None, seed: int = 10_000,
-             task_kwargs: dict | None = None, deterministic: bool = True) -> dict[str, Any]:
-    """Roll out the policy for `episodes` episodes (seeds seed, seed+1, ...); returns rows and a summary."""
+             task_kwargs: dict | None = None, deterministic: bool = True,
+             record_dir: str | Path | None = None) -> dict[str, Any]:
+    """Roll out the policy for `episodes` episodes (seeds seed, seed+1, ...); returns rows and a summary.
+    With `record_dir`, every episode is also written there as an MCAP log (`mjdrive replay`/`logs`)."""
     agent, payload = load_agent(checkpoint)
     config = payload["config"]
     task = task or config["task"]
     domain, name = split_task(task)
     kwargs = {**config.get("task_kwargs", {}), **(task_kwargs or {})}
     env = make_env(domain, name, actions=config.get("actions", "continuous"), **kwargs)
+    if record_dir is not None:
+        from mjdrive.record import RecordEpisodes
+
+        env = RecordEpisodes(env, record_dir)
     rows = []
     start = time.perf_counter()
     for episode in range(episodes):
@@ -160,8 +166,14 @@ def eval_command(args) -> int:
             raise ValueError(f"--task-kwarg expects KEY=VALUE, got {pair!r}")
         key, value = pair.split("=", 1)
         task_kwargs[key] = yaml.safe_load(value)
+    record_dir = None
+    if args.record:
+        record_dir = args.record_dir or str(Path(args.out).parent / f"{Path(args.out).name}_logs" if args.out
+                                            else Path("runs") / "eval" / Path(args.checkpoint).stem)
     result = evaluate(args.checkpoint, episodes=args.episodes, task=args.task, seed=args.seed,
-                      task_kwargs=task_kwargs, deterministic=not args.stochastic)
+                      task_kwargs=task_kwargs, deterministic=not args.stochastic, record_dir=record_dir)
+    if record_dir is not None:
+        result["logs"] = record_dir
     markdown = to_markdown(result)
     print(markdown)
     if args.out:
@@ -172,4 +184,6 @@ def eval_command(args) -> int:
         print(f"wrote {out.with_suffix('.md')} and {out.with_suffix('.json')}")
     else:
         print(json.dumps(result["summary"]))
+    if record_dir is not None:
+        print(f"episode logs (MCAP) in {record_dir}/")
     return 0

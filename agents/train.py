@@ -131,6 +131,8 @@ def train_command(args) -> int:
         overrides.append(f"num_envs={args.num_envs}")
     overrides += [f"task_kwargs.{pair}" for pair in args.task_kwarg]
     config = apply_overrides(config, overrides)
+    if args.record_dir:
+        config["record_dir"] = args.record_dir  # one MCAP log per training episode, per env copy
     out = args.out or f"runs/{config['algo']}_{config['task'].replace('/', '_')}_seed{config.get('seed', 0)}"
     import time
 

@@ -202,6 +202,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="config override, dots for nesting, e.g. algorithm.batch_size=128 (repeatable)")
     train.add_argument("--out", default=None, help="run folder (default: runs/ALGO_TASK_seedS)")
     train.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    train.add_argument("--record-dir", default=None, metavar="DIR",
+                       help="also log every training episode as MCAP, copy i in DIR/env_i/ (off by default)")
     train.add_argument("--no-progress", action="store_true", help="no progress bar")
     train.set_defaults(func=cmd_train)
 
@@ -214,6 +216,10 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--seed", type=int, default=10_000, help="seed of the first episode")
     evaluate.add_argument("--stochastic", action="store_true", help="sample actions instead of greedy ones")
     evaluate.add_argument("--out", default=None, help="write OUT.md and OUT.json")
+    evaluate.add_argument("--record", action=argparse.BooleanOptionalAction, default=True,
+                          help="write one MCAP log per episode (default on)")
+    evaluate.add_argument("--record-dir", default=None,
+                          help="where the logs go (default: OUT_logs/, or runs/eval/CHECKPOINT/)")
     evaluate.set_defaults(func=cmd_eval)
     return parser
 

@@ -317,3 +317,21 @@ def test_layout_file_refers_to_logged_topics():
         for path in layout["configById"][key]["paths"]:
             assert path["value"].split(".")[0] in topics
     assert layout["configById"]["Image!mjdrive"]["imageMode"]["imageTopic"] == "/camera/front"
+
+
+def test_batched_env_records_each_copy_apart_and_every_file_replays(tmp_path):
+    from mjdrive.envs.batched import BatchedEnv
+    from mjdrive.record.replay import replay
+
+    env = BatchedEnv("waypoints", "straight", num_envs=2, record_dir=tmp_path, time_limit=1.0)
+    env.reset(seed=5)
+    rng = np.random.default_rng(0)
+    for _ in range(25):  # 1 s episodes at 10 Hz: every copy auto-resets twice
+        env.step(rng.uniform([0.2, -0.2, 0.0], [0.8, 0.2, 0.0], size=(2, 3)))
+    env.close()
+    for copy in ("env_00", "env_01"):
+        files = sorted((tmp_path / copy).glob("*.mcap"))
+        assert len(files) >= 2, files
+        for path in files[:2]:
+            result = replay(path)
+            assert result.complete and result.mismatch_step is None and result.steps == 10, result

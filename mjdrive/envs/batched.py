@@ -28,6 +28,7 @@ replay buffer). `terminated` (task ended: collision, lane invasion, arrival, phy
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -35,6 +36,7 @@ import mujoco
 import numpy as np
 
 from mjdrive.envs.gym_env import DrivingGymEnv, make_env
+from mjdrive.record.recorder import EnvSpec, EpisodeRecorder
 
 BACKENDS = ("serial", "threads", "rollout")
 _CONTROL_SPEC = (mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_MOCAP_POS
@@ -60,6 +62,7 @@ class BatchedEnv:
         backend: str = "threads",
         device: str | None = None,
         environment_kwargs: dict[str, Any] | None = None,
+        record_dir: str | Path | None = None,
         **task_kwargs,
     ):
         if num_envs < 1:
@@ -94,6 +97,11 @@ class BatchedEnv:
             self._state = np.empty((num_envs, mujoco.mj_stateSize(model, _STATE_SPEC)))
             self._control_size = mujoco.mj_stateSize(model, _CONTROL_SPEC)
             self._warmstart = np.empty((num_envs, model.nv))
+        # One MCAP file per episode per copy, copy i into record_dir/env_{i:02d}/ (streams never mix).
+        self.recorders: list[EpisodeRecorder] | None = None
+        if record_dir is not None:
+            spec = EnvSpec(domain, task, self.task_kwargs, environment_kwargs)
+            self.recorders = [EpisodeRecorder(Path(record_dir) / f"env_{i:02d}", spec) for i in range(num_envs)]
         self._obs: list[dict[str, np.ndarray]] = []
         self.episode_returns = np.zeros(num_envs)
         self.episode_lengths = np.zeros(num_envs, np.int64)
@@ -102,8 +110,8 @@ class BatchedEnv:
     def reset(self, seed: int | None = None) -> tuple[dict, dict]:
         """Reset every copy (copy i with `seed + i` when a seed is given)."""
         self._obs, infos = [], []
-        for i, env in enumerate(self.envs):
-            obs, info = env.reset(seed=None if seed is None else seed + i)
+        for i in range(self.num_envs):
+            obs, info = self._reset_copy(i, None if seed is None else seed + i)
             self._obs.append(obs)
             infos.append(info)
         self.episode_returns[:] = 0.0
@@ -130,11 +138,14 @@ class BatchedEnv:
             self.episode_returns[i] += reward
             self.episode_lengths[i] += 1
             final_obs.append(obs)
+            if self.recorders is not None:
+                self.recorders[i].step(base.task, base.dm_env.physics, base.task.last_action, float(reward),
+                                       terminated=bool(term), truncated=bool(trunc))
             if term or trunc:
                 final_info[i] = {**base.task.info, "time_limit": bool(trunc),
                                  "episode_return": float(self.episode_returns[i]),
                                  "episode_length": int(self.episode_lengths[i])}
-                obs, _ = self.envs[i].reset()
+                obs, _ = self._reset_copy(i)
                 self.episode_returns[i], self.episode_lengths[i] = 0.0, 0
             self._obs[i] = obs
         done = terminated | truncated
@@ -148,6 +159,8 @@ class BatchedEnv:
         return self._out_obs(self._stack(self._obs))
 
     def close(self) -> None:
+        for recorder in self.recorders or ():
+            recorder.close()
         for env in self.envs:
             env.close()
         if self._pool is not None:
@@ -156,6 +169,18 @@ class BatchedEnv:
             self._rollout.close()
 
     # --- internals ------------------------------------------------------------------------------------
+    def _reset_copy(self, i: int, seed: int | None = None) -> tuple[dict, dict]:
+        """Reset copy i; with recording on, open its next episode file (with the RNG state for replay)."""
+        base = self.bases[i]
+        if self.recorders is None:
+            return self.envs[i].reset(seed=seed)
+        if seed is not None:
+            base.task.seed(seed)
+        rng_state = base.task.random.get_state()
+        obs, info = self.envs[i].reset(seed=seed)
+        self.recorders[i].begin(base.task, base.dm_env.physics, seed=seed, rng_state=rng_state)
+        return obs, info
+
     def _command(self, i: int, action) -> np.ndarray:
         """The (throttle, steer, brake) command of copy i: through its action table when discrete."""
         env = self.envs[i]
