@@ -7,6 +7,9 @@ import os as _os
 # Off-screen rendering needs a GL backend chosen before mujoco is imported; EGL is the default
 # on headless machines, OSMesa the fallback (set MUJOCO_GL=osmesa yourself to force it).
 _os.environ.setdefault("MUJOCO_GL", "egl")
+# Software GL (llvmpipe) renders small observation images best on one thread: its worker threads would
+# otherwise wake up after every physics step and compete with it (and with other envs) for the cores.
+_os.environ.setdefault("LP_NUM_THREADS", "1")
 
 from pathlib import Path as _Path  # noqa: E402
 
