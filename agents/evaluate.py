@@ -168,8 +168,8 @@ def eval_command(args) -> int:
         task_kwargs[key] = yaml.safe_load(value)
     record_dir = None
     if args.record:
-        record_dir = args.record_dir or str(Path(args.out).parent / f"{Path(args.out).name}_logs" if args.out
-                                            else Path("runs") / "eval" / Path(args.checkpoint).stem)
+        name = Path(args.out).name if args.out else Path(args.checkpoint).stem
+        record_dir = args.record_dir or str(Path("runs") / "eval" / name)  # logs stay out of results/
     result = evaluate(args.checkpoint, episodes=args.episodes, task=args.task, seed=args.seed,
                       task_kwargs=task_kwargs, deterministic=not args.stochastic, record_dir=record_dir)
     if record_dir is not None:

@@ -219,7 +219,7 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--record", action=argparse.BooleanOptionalAction, default=True,
                           help="write one MCAP log per episode (default on)")
     evaluate.add_argument("--record-dir", default=None,
-                          help="where the logs go (default: OUT_logs/, or runs/eval/CHECKPOINT/)")
+                          help="where the logs go (default: runs/eval/NAME/, NAME from --out or the checkpoint)")
     evaluate.set_defaults(func=cmd_eval)
     return parser
 
