@@ -159,11 +159,28 @@ class Encoder(nn.Module):
         return torch.cat([self.cnn(image), features], dim=-1)
 
 
+def random_shift(image: torch.Tensor, pad: int, generator: torch.Generator | None = None) -> torch.Tensor:
+    """DrQ's augmentation (Kostrikov et al. 2021): shift each (C, H, W) frame stack of a batch by its own random
+    offset in [-pad, pad] px on both axes, repeating the edge pixels (= pad with the edge, then crop)."""
+    if pad <= 0:
+        return image
+    b, c, h, w = image.shape
+    shift = torch.randint(-pad, pad + 1, (b, 2), generator=generator, device=image.device)
+    rows = (shift[:, 0:1] + torch.arange(h, device=image.device)).clamp_(0, h - 1)  # (B, H) source rows
+    cols = (shift[:, 1:2] + torch.arange(w, device=image.device)).clamp_(0, w - 1)  # (B, W) source columns
+    image = image.gather(2, rows[:, None, :, None].expand(b, c, h, w))
+    return image.gather(3, cols[:, None, None, :].expand(b, c, h, w))
+
+
 class ObsBatch:
     """Batched observations as torch tensors: `features` (B, F) float32 and `image` (B, C, H, W) uint8|None."""
 
     def __init__(self, features: torch.Tensor, image: torch.Tensor | None):
         self.features, self.image = features, image
+
+    def shifted(self, pad: int) -> ObsBatch:
+        """The same batch with `random_shift`ed images (features unchanged)."""
+        return self if self.image is None or pad <= 0 else ObsBatch(self.features, random_shift(self.image, pad))
 
     @classmethod
     def from_numpy(cls, layout: ObservationLayout, obs: dict[str, np.ndarray], device: str = "cpu") -> ObsBatch:
@@ -279,7 +296,7 @@ def load_module_state(module: nn.Module, state: dict, name: str) -> None:
 # --- run bookkeeping ----------------------------------------------------------------------------------
 
 EPISODE_FIELDS = ("episode", "env_step", "wall_s", "return", "length", "route_completion", "success",
-                  "collision", "lane_invasion", "off_road", "time_limit")
+                  "collision", "lane_invasion", "off_road", "off_route", "time_limit")
 
 
 class Run:
@@ -331,8 +348,9 @@ class Run:
             self.recent = (self.recent + [final["episode_return"]])[-20:]
             self.scalar("episode/return", final["episode_return"])
             self.scalar("episode/length", final["episode_length"])
-            if "route_completion" in final:
-                self.scalar("episode/route_completion", final["route_completion"])
+            for key in ("route_completion", "success", "collision"):
+                if key in final:
+                    self.scalar(f"episode/{key}", float(final[key]))
         if self.recent:
             self.bar.set_postfix(ep=self.episode, ret20=f"{np.mean(self.recent):.0f}", refresh=False)
 

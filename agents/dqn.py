@@ -1,6 +1,7 @@
 """DQN: a Q-network over the observation encoder (CNN for images, MLP for features), a target network,
-uniform replay and a linear epsilon schedule. Defaults: study 000 Table 2 (lr 1e-3, batch 128, buffer 1e5)
-and study 004 §4.2 (epsilon 0.9 -> 0.1); the loss is the studies' MSE unless `loss: huber`.
+uniform replay, a linear epsilon schedule and, with images, DrQ's random-shift augmentation. Defaults:
+study 000 Table 2 (lr 1e-3, batch 128, buffer 1e5) and study 004 §4.2 (epsilon 0.9 -> 0.1); the loss is
+the studies' MSE unless `loss: huber`.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ DEFAULTS = {
     "updates_per_step": 0.25,  # gradient steps per env transition
     "double": True,  # Double DQN target (van Hasselt 2016); False: the studies' max over the target net
     "loss": "mse",  # "mse" (the studies) or "huber"
+    "random_shift": 4,  # [px] DrQ image augmentation in updates (as in agents/sac.py); 0: none
     "max_grad_norm": 10.0,
     "hidden": [256, 256],
     "cnn": {"channels": [16, 16, 64], "kernel": 5, "stride": 2, "pool": "avg"},
@@ -79,7 +81,8 @@ class DQNAgent:
         return actions, actions
 
     def update(self, batch: dict) -> dict[str, float]:
-        hp, next_obs = self.hp, batch["next_obs"]
+        hp = self.hp
+        obs, next_obs = batch["obs"].shifted(hp["random_shift"]), batch["next_obs"].shifted(hp["random_shift"])
         with torch.no_grad():
             q_next = self.q_target(next_obs)
             if hp["double"]:
@@ -88,7 +91,7 @@ class DQNAgent:
             else:
                 v_next = q_next.max(-1).values
             target = batch["rewards"] + hp["gamma"] * (1.0 - batch["terminated"]) * v_next
-        q = self.q(batch["obs"]).gather(-1, batch["actions"].long().unsqueeze(-1)).squeeze(-1)
+        q = self.q(obs).gather(-1, batch["actions"].long().unsqueeze(-1)).squeeze(-1)
         loss = F.mse_loss(q, target) if hp["loss"] == "mse" else F.smooth_l1_loss(q, target)
         self.optimizer.zero_grad()
         loss.backward()

@@ -44,7 +44,7 @@ def end_reason(info: dict, terminated: bool, truncated: bool) -> str:
         return "arrived"
     if truncated:
         return "time_limit"
-    for key in ("lane_invasion", "off_road"):
+    for key in ("lane_invasion", "off_route", "off_road"):
         if info.get(key):
             return key
     return "terminated" if terminated else "running"

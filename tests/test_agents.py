@@ -155,3 +155,44 @@ def test_rsl_rl_vecenv_groups_actions_and_time_outs():
     env.close()
     with pytest.raises(ValueError, match="continuous actions"):
         RslRlVecEnv(BatchedEnv("waypoints", "straight", num_envs=1, actions="table1"))
+
+
+def test_random_shift_moves_each_frame_stack_by_its_own_offset_with_edge_padding():
+    from agents.common import random_shift
+
+    image = torch.arange(2 * 3 * 20 * 20, dtype=torch.int64).reshape(2, 3, 20, 20).to(torch.float32)
+    shifted = random_shift(image, 4, generator=torch.Generator().manual_seed(0))
+    assert shifted.shape == image.shape and torch.equal(random_shift(image, 0), image)
+    for b in range(2):
+        # find the offset from the centre pixel, then check the whole stack against pad-with-edge + crop
+        centre = shifted[b, 0, 10, 10].item()
+        dy, dx = divmod(int(centre) - 400 * 3 * b, 20)
+        dy, dx = dy - 10, dx - 10
+        assert -4 <= dy <= 4 and -4 <= dx <= 4
+        rows = (torch.arange(20) + dy).clamp(0, 19)
+        cols = (torch.arange(20) + dx).clamp(0, 19)
+        assert torch.equal(shifted[b], image[b][:, rows][:, :, cols])
+    many = random_shift(image.repeat(16, 1, 1, 1), 4, generator=torch.Generator().manual_seed(1))
+    assert len({tuple(many[i, 0, 10, 10:12].tolist()) for i in range(32)}) > 5  # offsets differ per sample
+
+
+def test_sac_actor_reads_the_critics_encoder_and_only_the_critic_trains_it():
+    config = _config("sac", [*CAMERA, f"algorithm.cnn={SMALL_CNN}", "algorithm.policy_every=1"])
+    env = BatchedEnv("waypoints", "straight", num_envs=2, observation="camera", image_size=32)
+    agent = agent_class("sac")(config, env.single_observation_space, env.single_action_space)
+    env.close()
+    assert agent.actor.encoder is agent.critic.encoder
+    encoder_ids = {id(p) for p in agent.critic.encoder.parameters()}
+    actor_ids = {id(p) for group in agent.actor_optimizer.param_groups for p in group["params"]}
+    assert encoder_ids and not encoder_ids & actor_ids  # the actor's optimizer never steps the encoder
+    from agents.common import ObsBatch
+
+    def batch():
+        return ObsBatch(torch.randn(8, 3), torch.randint(0, 256, (8, 3, 32, 32), dtype=torch.uint8))
+
+    data = {"obs": batch(), "next_obs": batch(), "actions": torch.rand(8, 3) * 2 - 1,
+            "rewards": torch.randn(8), "terminated": torch.zeros(8)}
+    before = [p.detach().clone() for p in agent.critic.encoder.parameters()]
+    info = agent.update(data)
+    assert np.isfinite(info["critic_loss"]) and np.isfinite(info["actor_loss"])
+    assert any(not torch.equal(a, b) for a, b in zip(before, agent.critic.encoder.parameters(), strict=True))

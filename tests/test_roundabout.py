@@ -179,3 +179,25 @@ def test_roundabout7_actions():
     env.reset(seed=0)
     env.step(6)  # a6: brake 0.5
     np.testing.assert_allclose(env.unwrapped.task.last_action, [0.0, 0.0, 0.5])
+
+
+def test_leaving_the_route_ends_the_episode_unless_disabled():
+    """A hard left from the yield line leaves the route (missed exit / island): terminated, flagged, no success;
+    with off_route=None the study's rule keeps the episode going."""
+    ends = {}
+    for off_route in (5.0, None):
+        env = suite.load("roundabout", "d120", {"random": 2, "off_route": off_route,
+                                                "road_users": {"car": 0, "pedestrian": 0}})
+        timestep = env.reset()
+        offsets = []
+        for _ in range(60):
+            timestep = env.step(np.array([0.4, 1.0, 0.0]))  # full left lock
+            offsets.append(abs(env.task.lane_offset))
+            if timestep.last():
+                break
+        ends[off_route] = (timestep.discount, dict(env.task.info), max(offsets))
+    discount, info, max_offset = ends[5.0]
+    assert discount == 0.0 and info["off_route"] and not info["success"] and not info["collision"]
+    assert 5.0 < max_offset < 7.0  # ended on the first step past 5 m
+    discount, info, max_offset = ends[None]
+    assert not info["off_route"] and max_offset > 7.0

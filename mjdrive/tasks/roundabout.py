@@ -29,6 +29,11 @@ step to the next); v/10 with v in km/h clipped to [0, 30] (at most 3); -0.05 x o
 footprint; -0.05 x share of the footprint in another lane than the route; +100 on arrival.
 `task.reward_terms` holds the terms of the last step. Episodes end on collision or arrival (terminated)
 or after 1100 steps (truncated). Control at 5 Hz (§5.1).
+
+Leaving the route (`off_route` 5 m from its centre line: a missed exit, a drive across the island) also
+ends the episode (terminated, `info["off_route"]`, not a success). The study lists only collision, arrival
+and 1100 steps, but under eq. 12 alone circling the ring pays: v/10 earns up to 3 per step, so over 1100
+steps a missed exit outscores arriving (+100) many times over. Pass `off_route=None` for the study's rule.
 """
 
 from __future__ import annotations
@@ -113,6 +118,7 @@ class RoundaboutTask(DrivingTask):
         image_size: int = 84,  # [px]
         frames: int = 4,
         speed_reward: bool = True,  # R_t3 (the paper's sum leaves it out; the spec keeps it)
+        off_route: float | None = 5.0,  # [m] from the route's centre line that ends the episode; None: never
         traffic_config: TrafficConfig | None = None,
         random=None,
     ):
@@ -134,6 +140,9 @@ class RoundaboutTask(DrivingTask):
         self.image_size = image_size
         self.frames = frames
         self.speed_reward = speed_reward
+        if off_route is not None and off_route <= 0:
+            raise ValueError(f"off_route must be a positive distance [m] or None, got {off_route}")
+        self.off_route = off_route
         self.traffic = Traffic(road_map, kinds, traffic_config)
         self.traffic.bind(model)
         self._kind_onehot = np.eye(len(KIND_NAMES), dtype=np.float32)[self.traffic.kind_id]
@@ -173,7 +182,7 @@ class RoundaboutTask(DrivingTask):
         self.remaining = self._remaining()
         self._frames: collections.deque | None = None
         self.info = {
-            "success": False, "collision": False, "off_road": False, "physics_error": None,
+            "success": False, "collision": False, "off_road": False, "off_route": False, "physics_error": None,
             "elapsed_time": 0.0, "average_speed": 0.0, "distance": 0.0, "steps": 0, "episode_reward": 0.0,
             "remaining_distance": self.remaining, "route_length": self.destination_s - start_s,
             "entry": entry, "exit": exit_arm,
@@ -233,6 +242,7 @@ class RoundaboutTask(DrivingTask):
         arrived = self.route_s >= self.destination_s - 0.5 and abs(self.lane_offset) <= self._route_width / 2
         info["collision"] |= collision
         info["off_road"] |= off_share == 1.0
+        info["off_route"] |= self.off_route is not None and abs(self.lane_offset) > self.off_route
         info["success"] = bool(arrived and not info["collision"])
         info["steps"] += 1
         info["elapsed_time"] = float(physics.data.time)
@@ -257,7 +267,7 @@ class RoundaboutTask(DrivingTask):
         return self._step_reward
 
     def get_termination(self, physics: Physics) -> float | None:
-        if self.info["collision"] or self.info["success"]:
+        if self.info["collision"] or self.info["success"] or self.info["off_route"]:
             return 0.0
         return None
 
