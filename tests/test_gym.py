@@ -84,3 +84,23 @@ def test_same_seed_same_trajectory_bit_for_bit(env_id):
             assert np.array_equal(x[key], y[key]), key
     if c is not None:
         assert not np.array_equal(a[:5], c[:5])  # another seed, another route
+
+
+def test_pedal_actions_drive_or_brake_never_both():
+    from mjdrive.envs.batched import BatchedEnv
+
+    env = gym.make("mjdrive/Waypoints-Straight-v0", actions="pedal")
+    assert env.action_space == gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+    env.reset(seed=0)
+    for action, command in (([0.6, -0.2], [0.6, -0.2, 0.0]), ([-0.4, 0.3], [0.0, 0.3, 0.4]), ([0, 0], [0, 0, 0])):
+        env.step(np.array(action, np.float32))
+        np.testing.assert_allclose(env.unwrapped.task.last_action, command, atol=1e-6)
+    with pytest.raises(ValueError, match="finite"):
+        env.step(np.array([np.nan, 0.0], np.float32))
+    batched = BatchedEnv("waypoints", "straight", num_envs=2, actions="pedal")
+    batched.reset(seed=0)
+    for _ in range(10):
+        batched.step(np.array([[1.0, 0.0], [-1.0, 0.0]], np.float32))
+    speeds = [base.task.vehicle.speed(base.dm_env.physics.raw_data) for base in batched.bases]
+    assert speeds[0] > 2.0 and abs(speeds[1]) < 0.05  # full pedal drives off; full brake stays put
+    batched.close()

@@ -17,7 +17,8 @@ import numpy as np
 
 
 def read_episodes(run: Path) -> dict[str, np.ndarray]:
-    with open(run / "episodes.csv") as f:
+    """Columns of a run folder's episodes.csv (or of the CSV file itself) as float arrays."""
+    with open(run if run.suffix == ".csv" else run / "episodes.csv") as f:
         rows = list(csv.DictReader(f))
     if not rows:
         raise ValueError(f"{run}/episodes.csv has no episodes")
@@ -26,7 +27,7 @@ def read_episodes(run: Path) -> dict[str, np.ndarray]:
         values = [row.get(key, "") for row in rows]
         return np.array([float(v == "True") if v in ("True", "False") else float(v or "nan") for v in values])
 
-    return {key: column(key) for key in ("episode", "env_step", "wall_s", "return", "route_completion")}
+    return {key: column(key) for key in ("episode", "env_step", "wall_s", "return", "route_completion", "success")}
 
 
 def moving_average(x: np.ndarray, window: int) -> np.ndarray:
@@ -43,15 +44,18 @@ def plot(runs: list[Path], labels: list[str], out: Path, window: int, title: str
     import matplotlib.pyplot as plt
 
     data = [read_episodes(run) for run in runs]
-    has_completion = all(np.isfinite(d["route_completion"]).any() for d in data)
-    fig, axes = plt.subplots(1, 2 if has_completion else 1, figsize=(11 if has_completion else 6, 4), squeeze=False)
+    # second panel: route completion (waypoints), else the success rate (roundabout), if every run has it
+    second = next((key for key in ("route_completion", "success")
+                   if all(np.isfinite(d[key]).any() for d in data)), None)
+    fig, axes = plt.subplots(1, 2 if second else 1, figsize=(11 if second else 6, 4), squeeze=False)
     for d, label in zip(data, labels, strict=True):
-        for ax, key in zip(axes[0], ("return", "route_completion"), strict=False):
+        for ax, key in zip(axes[0], ("return", second), strict=False):
             line = ax.plot(d["episode"], moving_average(d[key], window), label=label)[0]
             ax.plot(d["episode"], d[key], color=line.get_color(), alpha=0.15, linewidth=0.5)
     axes[0, 0].set(xlabel="episode", ylabel=f"episode reward (moving average of {window})", title=title)
-    if has_completion:
-        axes[0, 1].set(xlabel="episode", ylabel="route completion", ylim=(0, 1.05), title="route completion")
+    if second:
+        name = second.replace("_", " ")
+        axes[0, 1].set(xlabel="episode", ylabel=f"{name} (moving average of {window})", ylim=(0, 1.05), title=name)
     for ax in axes[0]:
         ax.grid(alpha=0.3)
         ax.legend(loc="lower right")
@@ -63,7 +67,7 @@ def plot(runs: list[Path], labels: list[str], out: Path, window: int, title: str
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("runs", nargs="+", type=Path, help="run folders (with episodes.csv)")
+    parser.add_argument("runs", nargs="+", type=Path, help="run folders (with episodes.csv) or episodes CSV files")
     parser.add_argument("--labels", nargs="+", default=None)
     parser.add_argument("--window", type=int, default=50, help="moving-average window [episodes]")
     parser.add_argument("--title", default="average reward vs episodes")

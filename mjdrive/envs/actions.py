@@ -1,4 +1,5 @@
-"""Discrete action tables of the studies, as gymnasium wrappers over (throttle, steer, brake)."""
+"""Action sets as gymnasium wrappers over (throttle, steer, brake): the studies' discrete tables, and "pedal"
+(one signed pedal axis + steer) for continuous learners."""
 
 from __future__ import annotations
 
@@ -43,10 +44,35 @@ class DiscreteActions(gym.ActionWrapper):
         return command.astype(np.float32)
 
 
+class PedalActions(gym.ActionWrapper):
+    """(pedal, steer) in [-1, 1]^2 -> (throttle, steer, brake) = (max(pedal, 0), steer, max(-pedal, 0)).
+
+    The same three channels, never throttle and brake at once. With (throttle, steer, brake) a policy that
+    starts at the middle of its box (tanh-Gaussian SAC: throttle 0.5, brake 0.5) holds the car still, and
+    uniform random exploration brakes as often as it drives; here zero is coasting and the sign picks
+    the pedal (as CARLA RL agents such as Roach, Zhang et al. 2021, do).
+    """
+
+    def __init__(self, env: gym.Env):
+        super().__init__(env)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+
+    def action(self, action) -> np.ndarray:
+        pedal, steer = np.asarray(action, np.float64).reshape(2)
+        if not (np.isfinite(pedal) and np.isfinite(steer)):
+            raise ValueError(f"pedal action must be finite, got {action!r}")
+        return np.array([max(pedal, 0.0), steer, max(-pedal, 0.0)], np.float32)
+
+
+ACTION_SETS = ("continuous", "pedal", *ACTION_TABLES)
+
+
 def wrap_actions(env: gym.Env, actions: str) -> gym.Env:
-    """"continuous" leaves the env as is; a table name from ACTION_TABLES wraps it."""
+    """"continuous" leaves the env as is; "pedal" and the table names of ACTION_TABLES wrap it."""
     if actions == "continuous":
         return env
+    if actions == "pedal":
+        return PedalActions(env)
     if actions not in ACTION_TABLES:
-        raise ValueError(f"unknown action set {actions!r}; valid: continuous, {', '.join(ACTION_TABLES)}")
+        raise ValueError(f"unknown action set {actions!r}; valid: {', '.join(ACTION_SETS)}")
     return DiscreteActions(env, ACTION_TABLES[actions])

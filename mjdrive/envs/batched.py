@@ -80,6 +80,7 @@ class BatchedEnv:
         self.single_observation_space: gym.spaces.Dict = self.envs[0].observation_space
         self.single_action_space: gym.Space = self.envs[0].action_space
         self.discrete = isinstance(self.single_action_space, gym.spaces.Discrete)
+        self.wrapped_actions = isinstance(self.envs[0], gym.ActionWrapper)  # a table or "pedal"
         dm = self.bases[0].dm_env
         self.control_timestep = float(dm.control_timestep())  # [s]
         self.n_sub_steps = int(dm._n_sub_steps)
@@ -182,9 +183,9 @@ class BatchedEnv:
         return obs, info
 
     def _command(self, i: int, action) -> np.ndarray:
-        """The (throttle, steer, brake) command of copy i: through its action table when discrete."""
+        """The (throttle, steer, brake) command of copy i: through its action wrapper, if any."""
         env = self.envs[i]
-        command = env.action(action) if self.discrete else np.asarray(action, np.float64)
+        command = env.action(action) if self.wrapped_actions else np.asarray(action, np.float64)
         command = np.asarray(command, np.float64)
         if not np.all(np.isfinite(command)):
             raise ValueError(f"action contains NaN or inf: {action}")
