@@ -11,7 +11,7 @@ from mjdrive import suite
 from mjdrive.control.autopilot import Autopilot
 from mjdrive.tasks.roundabout import DENSITIES, MAX_STEPS
 
-TERMS = {"collision", "progress", "speed", "off_road", "other_lane", "arrival"}
+TERMS = {"collision", "progress", "speed", "off_road", "other_lane", "arrival", "off_route"}
 
 
 @pytest.fixture(scope="module")
@@ -181,12 +181,25 @@ def test_roundabout7_actions():
     np.testing.assert_allclose(env.unwrapped.task.last_action, [0.0, 0.0, 0.5])
 
 
+def test_destination_vector_in_the_ego_frame_is_the_world_vector_rotated():
+    world = suite.load("roundabout", "d120", {"random": 4})
+    ego = suite.load("roundabout", "d120", {"random": 4, "destination_frame": "ego"})
+    a, b = world.reset(), ego.reset()
+    for _ in range(8):
+        a, b = world.step(np.array([0.5, 0.3, 0.0])), ego.step(np.array([0.5, 0.3, 0.0]))
+    yaw = ego.task.yaw
+    rotation = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]])
+    np.testing.assert_allclose(b.observation["destination"], rotation @ a.observation["destination"], atol=1e-4)
+    with pytest.raises(ValueError, match="destination_frame"):
+        suite.load("roundabout", "d120", {"destination_frame": "car"})
+
+
 def test_leaving_the_route_ends_the_episode_unless_disabled():
     """A hard left from the yield line leaves the route (missed exit / island): terminated, flagged, no success;
     with off_route=None the study's rule keeps the episode going."""
     ends = {}
     for off_route in (5.0, None):
-        env = suite.load("roundabout", "d120", {"random": 2, "off_route": off_route,
+        env = suite.load("roundabout", "d120", {"random": 2, "off_route": off_route, "off_route_penalty": 50.0,
                                                 "road_users": {"car": 0, "pedestrian": 0}})
         timestep = env.reset()
         offsets = []
@@ -196,6 +209,7 @@ def test_leaving_the_route_ends_the_episode_unless_disabled():
             if timestep.last():
                 break
         ends[off_route] = (timestep.discount, dict(env.task.info), max(offsets))
+        assert env.task.reward_terms["off_route"] == (-50.0 if off_route else 0.0)
     discount, info, max_offset = ends[5.0]
     assert discount == 0.0 and info["off_route"] and not info["success"] and not info["collision"]
     assert 5.0 < max_offset < 7.0  # ended on the first step past 5 m

@@ -34,6 +34,9 @@ Leaving the route (`off_route` 5 m from its centre line: a missed exit, a drive 
 ends the episode (terminated, `info["off_route"]`, not a success). The study lists only collision, arrival
 and 1100 steps, but under eq. 12 alone circling the ring pays: v/10 earns up to 3 per step, so over 1100
 steps a missed exit outscores arriving (+100) many times over. Pass `off_route=None` for the study's rule.
+`off_route_penalty` (default 0, the study's eq. 12) is subtracted on that step (term "off_route");
+`destination_frame="ego"` gives the destination vector in the car's frame (x ahead, y left) instead of
+the study's world frame.
 """
 
 from __future__ import annotations
@@ -119,6 +122,8 @@ class RoundaboutTask(DrivingTask):
         frames: int = 4,
         speed_reward: bool = True,  # R_t3 (the paper's sum leaves it out; the spec keeps it)
         off_route: float | None = 5.0,  # [m] from the route's centre line that ends the episode; None: never
+        off_route_penalty: float = 0.0,  # subtracted when the episode ends off the route (the study has none)
+        destination_frame: str = "world",  # "world" (§4.2) or "ego": the destination vector in the car's frame
         traffic_config: TrafficConfig | None = None,
         random=None,
     ):
@@ -143,6 +148,10 @@ class RoundaboutTask(DrivingTask):
         if off_route is not None and off_route <= 0:
             raise ValueError(f"off_route must be a positive distance [m] or None, got {off_route}")
         self.off_route = off_route
+        self.off_route_penalty = float(off_route_penalty)
+        if destination_frame not in ("world", "ego"):
+            raise ValueError(f"destination_frame must be 'world' or 'ego', got {destination_frame!r}")
+        self.destination_frame = destination_frame
         self.traffic = Traffic(road_map, kinds, traffic_config)
         self.traffic.bind(model)
         self._kind_onehot = np.eye(len(KIND_NAMES), dtype=np.float32)[self.traffic.kind_id]
@@ -257,6 +266,7 @@ class RoundaboutTask(DrivingTask):
             "off_road": -0.05 * off_share,
             "other_lane": -0.05 * other_share,
             "arrival": 100.0 * info["success"],
+            "off_route": -self.off_route_penalty * info["off_route"],
         }
         self.remaining = remaining
         self.reward_terms = terms
@@ -294,6 +304,10 @@ class RoundaboutTask(DrivingTask):
     def get_observation(self, physics: Physics) -> collections.OrderedDict:
         obs = collections.OrderedDict()
         destination = (self.destination - self.xy).astype(np.float32)
+        if self.destination_frame == "ego":  # x ahead, y to the left [m]
+            c, s = np.cos(self.yaw), np.sin(self.yaw)
+            destination = np.array([c * destination[0] + s * destination[1],
+                                    -s * destination[0] + c * destination[1]], np.float32)
         if self.observation == "camera":
             size = self.image_size
             rgb = self.render_camera(physics, "ego/front", size, size)
