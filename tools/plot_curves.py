@@ -58,7 +58,7 @@ def plot(runs: list[Path], labels: list[str], out: Path, window: int, title: str
         axes[0, 1].set(xlabel="episode", ylabel=f"{name} (moving average of {window})", ylim=(0, 1.05), title=name)
     for ax in axes[0]:
         ax.grid(alpha=0.3)
-        ax.legend(loc="lower right")
+        ax.legend(loc="best", fontsize="small")
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
