@@ -86,7 +86,7 @@ def test_observation_layout_scales_features_and_transposes_images():
 def test_roundabout_traffic_moves_between_substeps_as_in_the_single_env(backend):
     """The roundabout moves its traffic in Physics.substep_callback: the batched physics call must too."""
     actions = _actions(25, seed=1)
-    env = make_env("roundabout", "d120", observation="features")
+    env = make_env("roundabout", "d120", observation="features", off_route=None)  # random actions leave the route
     env.reset(seed=4)
     users = env.unwrapped.task.road_users()
     reference = []
@@ -96,8 +96,10 @@ def test_roundabout_traffic_moves_between_substeps_as_in_the_single_env(backend)
         if terminated or truncated:
             break
     first, last = users.poses, env.unwrapped.task.road_users().poses
+    assert len(reference) == len(actions)  # no episode end inside the compared steps
     assert first.shape != last.shape or np.abs(first - last).max() > 1.0  # [m] the traffic moved
-    batched = BatchedEnv("roundabout", "d120", num_envs=2, nthread=2, backend=backend, observation="features")
+    batched = BatchedEnv("roundabout", "d120", num_envs=2, nthread=2, backend=backend, observation="features",
+                         off_route=None)
     batched.reset(seed=4)
     for action, (road_users, poses, reward) in zip(actions, reference, strict=False):
         obs, rewards, *_ = batched.step(np.stack([action, action]))
