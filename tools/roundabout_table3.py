@@ -46,7 +46,7 @@ def training_wall_clock(episodes_csv: Path, step: int) -> tuple[float, int]:
         for row in csv.DictReader(f):
             if int(row["env_step"]) > step:
                 break
-            wall, episodes = float(row["wall_s"]), int(row["episode"]) + 1
+            wall, episodes = float(row["wall_s"]), int(row["episode"])  # episodes are counted from 1
     return wall, episodes
 
 
