@@ -15,6 +15,7 @@ import argparse
 import csv
 import json
 import platform
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -92,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     paper_rows = [f"| {name} (paper) | {level} | " + " | ".join(str(v) for v in values) + " | - |"
                   for name, levels in PAPER.items() for level, values in levels.items()]
     command = "python tools/roundabout_table3.py --episodes {} {}".format(
-        args.episodes, " ".join("--agent " + " ".join(spec) for spec in args.agent))
+        args.episodes, " ".join("--agent " + shlex.join(spec) for spec in args.agent))
     lines = [
         "# Roundabout (study 000), Table 3: trained agents at every density",
         "",
