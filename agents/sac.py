@@ -4,9 +4,9 @@ target critics, automatic entropy tuning. Table 2 hyper-parameters are the defau
 
 One encoder serves both (as in SAC-AE / DrQ, Yarats et al. 2021, Kostrikov et al. 2021): the critic's loss
 trains it, the actor reads its output detached, and the target critics keep a Polyak copy. With images,
-each update sees its frames randomly shifted by up to `random_shift` px (DrQ). Both make pixel SAC learn
-from far fewer samples, and the shared encoder makes an update ~3x cheaper (one CNN pass with gradients
-instead of three).
+each update sees its frames randomly shifted by up to `random_shift` px (DrQ's augmentation, which those
+papers found makes pixel SAC far more sample-efficient). One CNN pass with gradients instead of three made
+an update 1.8x cheaper here (batch 64, 4x84x84, 1 thread: 112 -> 61 ms).
 """
 
 from __future__ import annotations
