@@ -300,7 +300,8 @@ EPISODE_FIELDS = ("episode", "env_step", "wall_s", "return", "length", "route_co
 
 
 class Run:
-    """One training run's outputs in `out/`: config.yaml, episodes.csv (one row per ended episode),
+    """One training run's outputs in `out/`: config.yaml, episodes.csv (one row per ended episode, flushed as
+    it ends; a resumed run keeps the rows up to its checkpoint),
     TensorBoard scalars (tb/), checkpoints (checkpoint.pt = latest, checkpoints/step_N.pt), a tqdm bar."""
 
     def __init__(self, out: str | Path, config: dict, total_steps: int, start_step: int = 0,
@@ -321,11 +322,17 @@ class Run:
             from torch.utils.tensorboard import SummaryWriter
 
             self.writer = SummaryWriter(str(self.out / "tb"))
-        new_file = not (self.out / "episodes.csv").exists() or start_step == 0
-        self._csv_file = open(self.out / "episodes.csv", "w" if new_file else "a", newline="")  # noqa: SIM115
+        csv_path = self.out / "episodes.csv"
+        new_file = not csv_path.exists() or start_step == 0
+        if not new_file:  # a resumed run: drop the rows logged after the checkpoint it resumes from
+            with open(csv_path, newline="") as f:
+                kept = [row for row in csv.DictReader(f) if int(row["episode"]) <= start_episode]
+        self._csv_file = open(csv_path, "w", newline="")  # noqa: SIM115
         self._csv = csv.DictWriter(self._csv_file, EPISODE_FIELDS, extrasaction="ignore")
-        if new_file:
-            self._csv.writeheader()
+        self._csv.writeheader()
+        if not new_file:
+            self._csv.writerows(kept)
+        self._csv_file.flush()
         self.recent: list[float] = []
         self.latest: dict[str, float] = {}  # last value of every scalar (written to scalars.json at close)
         self.start_time = time.perf_counter()
@@ -351,6 +358,8 @@ class Run:
             for key in ("route_completion", "success", "collision"):
                 if key in final:
                     self.scalar(f"episode/{key}", float(final[key]))
+        if any(final is not None for final in final_infos or []):
+            self._csv_file.flush()  # a killed run keeps every ended episode
         if self.recent:
             self.bar.set_postfix(ep=self.episode, ret20=f"{np.mean(self.recent):.0f}", refresh=False)
 

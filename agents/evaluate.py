@@ -52,9 +52,12 @@ def end_reason(info: dict, terminated: bool, truncated: bool) -> str:
 
 def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None, seed: int = 10_000,
              task_kwargs: dict | None = None, deterministic: bool = True,
-             record_dir: str | Path | None = None) -> dict[str, Any]:
+             record_dir: str | Path | None = None, progress: str | None = None) -> dict[str, Any]:
     """Roll out the policy for `episodes` episodes (seeds seed, seed+1, ...); returns rows and a summary.
-    With `record_dir`, every episode is also written there as an MCAP log (`mjdrive replay`/`logs`)."""
+    With `record_dir`, every episode is also written there as an MCAP log (`mjdrive replay`/`logs`).
+    `progress`: the label of a tqdm bar over the episodes (on stderr); None: no bar."""
+    from tqdm import tqdm
+
     agent, payload = load_agent(checkpoint)
     config = payload["config"]
     task = task or config["task"]
@@ -67,7 +70,8 @@ def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None
         env = RecordEpisodes(env, record_dir)
     rows = []
     start = time.perf_counter()
-    for episode in range(episodes):
+    for episode in tqdm(range(episodes), desc=progress, unit="episode", disable=progress is None,
+                        dynamic_ncols=True):
         obs, info = env.reset(seed=seed + episode)
         total, steps = 0.0, 0
         while True:
@@ -171,7 +175,8 @@ def eval_command(args) -> int:
         name = Path(args.out).name if args.out else Path(args.checkpoint).stem
         record_dir = args.record_dir or str(Path("runs") / "eval" / name)  # logs stay out of results/
     result = evaluate(args.checkpoint, episodes=args.episodes, task=args.task, seed=args.seed,
-                      task_kwargs=task_kwargs, deterministic=not args.stochastic, record_dir=record_dir)
+                      task_kwargs=task_kwargs, deterministic=not args.stochastic, record_dir=record_dir,
+                      progress="eval")
     if record_dir is not None:
         result["logs"] = record_dir
     markdown = to_markdown(result)

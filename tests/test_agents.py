@@ -196,3 +196,25 @@ def test_sac_actor_reads_the_critics_encoder_and_only_the_critic_trains_it():
     info = agent.update(data)
     assert np.isfinite(info["critic_loss"]) and np.isfinite(info["actor_loss"])
     assert any(not torch.equal(a, b) for a, b in zip(before, agent.critic.encoder.parameters(), strict=True))
+
+
+def test_episode_log_is_flushed_as_episodes_end_and_resume_drops_later_rows(tmp_path):
+    from agents.common import Run
+
+    def ended(n):
+        return [{"episode_return": float(i), "episode_length": 10, "success": False} for i in range(n)]
+
+    config = {"algo": "sac", "checkpoint_every": 0}
+    run = Run(tmp_path, config, total_steps=100, progress=False, tensorboard=False)
+    run.add_steps(20, ended(2))
+    run.save("sac", {}, periodic=False)  # the checkpoint a resumed run restarts from: episode 2, step 20
+    run.add_steps(20, [None, *ended(1)])
+    rows = (tmp_path / "episodes.csv").read_text().splitlines()
+    assert len(rows) == 1 + 3  # readable before close: a killed run keeps them
+    del run  # killed: never closed
+    resumed = Run(tmp_path, config, total_steps=100, start_step=20, start_episode=2, progress=False,
+                  tensorboard=False)
+    resumed.add_steps(20, ended(1))
+    resumed.close()
+    rows = (tmp_path / "episodes.csv").read_text().splitlines()
+    assert [r.split(",")[:2] for r in rows[1:]] == [["1", "20"], ["2", "20"], ["3", "40"]]

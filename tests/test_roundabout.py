@@ -54,6 +54,19 @@ def test_observations_camera_stack_and_destination_vector():
     task = env.task
     np.testing.assert_allclose(timestep.observation["destination"], task.destination - task.xy, atol=1e-4)
     assert image.std() > 5  # not a blank frame
+    assert set(timestep.observation) == {"image", "destination"}  # the study's camera input only
+
+
+def test_camera_observation_can_carry_the_ego_state():
+    features = suite.load("roundabout", "d120", {"random": 2})
+    camera = suite.load("roundabout", "d120", {"random": 2, "observation": "camera", "camera_ego": True})
+    assert set(camera.observation_spec()) == {"image", "destination", "ego"}
+    a, b = features.reset(), camera.reset()
+    for _ in range(6):
+        a, b = features.step(np.array([0.5, 0.2, 0.0])), camera.step(np.array([0.5, 0.2, 0.0]))
+    ego = b.observation["ego"]
+    np.testing.assert_array_equal(ego, a.observation["ego"])  # same episode, same ego vector
+    assert ego[0] > 1.0 and abs(ego[3]) > 0.0  # [m/s] moving; off the centre line after steering
 
 
 def test_features_observation_lists_the_nearest_road_users(env210):

@@ -76,7 +76,8 @@ def main(argv: list[str] | None = None) -> int:
     results, rows, training = {}, [], []
     for name, checkpoint, *csv_path in args.agent:
         for level in args.levels:
-            result = evaluate(checkpoint, episodes=args.episodes, task=f"roundabout/{level}", seed=args.seed)
+            result = evaluate(checkpoint, episodes=args.episodes, task=f"roundabout/{level}", seed=args.seed,
+                              progress=f"{name} {level}")
             results.setdefault(name, {})[level] = result
             s = result["summary"]
             rows.append(f"| {name} | {level} | {s['avg_reward']:.2f} | {s['avg_time_s']:.2f} | "

@@ -36,7 +36,8 @@ and 1100 steps, but under eq. 12 alone circling the ring pays: v/10 earns up to 
 steps a missed exit outscores arriving (+100) many times over. Pass `off_route=None` for the study's rule.
 `off_route_penalty` (default 0, the study's eq. 12) is subtracted on that step (term "off_route");
 `destination_frame="ego"` gives the destination vector in the car's frame (x ahead, y left) instead of
-the study's world frame.
+the study's world frame. `camera_ego=True` adds the features' ego vector to the "camera" observation (the
+study's camera agent sees only frames and the destination).
 """
 
 from __future__ import annotations
@@ -124,6 +125,7 @@ class RoundaboutTask(DrivingTask):
         off_route: float | None = 5.0,  # [m] from the route's centre line that ends the episode; None: never
         off_route_penalty: float = 0.0,  # subtracted when the episode ends off the route (the study has none)
         destination_frame: str = "world",  # "world" (§4.2) or "ego": the destination vector in the car's frame
+        camera_ego: bool = False,  # "camera" observation: add the features' ego vector (not in the study)
         traffic_config: TrafficConfig | None = None,
         random=None,
     ):
@@ -152,6 +154,7 @@ class RoundaboutTask(DrivingTask):
         if destination_frame not in ("world", "ego"):
             raise ValueError(f"destination_frame must be 'world' or 'ego', got {destination_frame!r}")
         self.destination_frame = destination_frame
+        self.camera_ego = bool(camera_ego)
         self.traffic = Traffic(road_map, kinds, traffic_config)
         self.traffic.bind(model)
         self._kind_onehot = np.eye(len(KIND_NAMES), dtype=np.float32)[self.traffic.kind_id]
@@ -291,10 +294,13 @@ class RoundaboutTask(DrivingTask):
         destination = specs.Array((2,), np.float32, "destination")
         if self.observation == "camera":
             size = self.image_size
-            return collections.OrderedDict(
+            spec = collections.OrderedDict(
                 image=specs.BoundedArray((self.frames, size, size), np.uint8, 0, 255, "image"),
                 destination=destination,
             )
+            if self.camera_ego:
+                spec["ego"] = specs.Array((6,), np.float32, "ego")
+            return spec
         return collections.OrderedDict(
             ego=specs.Array((6,), np.float32, "ego"),
             destination=destination,
@@ -318,12 +324,18 @@ class RoundaboutTask(DrivingTask):
                 self._frames.append(gray)
             obs["image"] = np.stack(self._frames)
             obs["destination"] = destination
+            if self.camera_ego:
+                obs["ego"] = self._ego_vector()
             return obs
-        c, s = np.cos(self.yaw), np.sin(self.yaw)
-        obs["ego"] = np.array([self.speed, self.yaw_rate, self.heading_error, self.lane_offset, c, s], np.float32)
+        obs["ego"] = self._ego_vector()
         obs["destination"] = destination
         obs["road_users"] = self._nearest_road_users(physics)
         return obs
+
+    def _ego_vector(self) -> np.ndarray:
+        """(6,) speed [m/s], yaw rate [rad/s], heading error [rad], lateral offset [m], cos/sin(yaw)."""
+        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        return np.array([self.speed, self.yaw_rate, self.heading_error, self.lane_offset, c, s], np.float32)
 
     def _nearest_road_users(self, physics: Physics) -> np.ndarray:
         """(K, ROAD_USER_COLUMNS) the K nearest present road users in the ego frame, zero-padded."""
