@@ -332,8 +332,10 @@ class Run:
         self._csv_file = open(csv_path, "w", newline="")  # noqa: SIM115
         self._csv = csv.DictWriter(self._csv_file, EPISODE_FIELDS, extrasaction="ignore")
         self._csv.writeheader()
+        self.wall_offset = 0.0  # [s] of training before a resume: wall_s in episodes.csv is cumulative
         if not new_file:
             self._csv.writerows(kept)
+            self.wall_offset = float(kept[-1]["wall_s"]) if kept else 0.0
         self._csv_file.flush()
         self.recent: list[float] = []
         self.latest: dict[str, float] = {}  # last value of every scalar (written to scalars.json at close)
@@ -350,7 +352,7 @@ class Run:
                 continue
             self.episode += 1
             row = {"episode": self.episode, "env_step": self.step,
-                   "wall_s": round(time.perf_counter() - self.start_time, 2),
+                   "wall_s": round(self.wall_offset + time.perf_counter() - self.start_time, 2),
                    "return": round(final["episode_return"], 3), "length": final["episode_length"],
                    **{k: final[k] for k in EPISODE_FIELDS[5:] if k in final}}
             self._csv.writerow(row)
@@ -391,7 +393,8 @@ class Run:
 
     def close(self) -> None:
         summary = {"env_steps": self.step, "episodes": self.episode,
-                   "wall_s": round(time.perf_counter() - self.start_time, 1), "latest": self.latest}
+                   "wall_s": round(self.wall_offset + time.perf_counter() - self.start_time, 1),
+                   "latest": self.latest}
         (self.out / "scalars.json").write_text(json.dumps(summary, indent=2) + "\n")
         self.bar.close()
         self._csv_file.close()

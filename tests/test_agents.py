@@ -218,3 +218,5 @@ def test_episode_log_is_flushed_as_episodes_end_and_resume_drops_later_rows(tmp_
     resumed.close()
     rows = (tmp_path / "episodes.csv").read_text().splitlines()
     assert [r.split(",")[:2] for r in rows[1:]] == [["1", "20"], ["2", "20"], ["3", "40"]]
+    walls = [float(r.split(",")[2]) for r in rows[1:]]
+    assert walls == sorted(walls)  # wall-clock counts on from the resumed checkpoint
