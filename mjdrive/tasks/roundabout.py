@@ -307,13 +307,25 @@ class RoundaboutTask(DrivingTask):
             road_users=specs.Array((self.neighbours, ROAD_USER_COLUMNS), np.float32, "road_users"),
         )
 
-    def get_observation(self, physics: Physics) -> collections.OrderedDict:
-        obs = collections.OrderedDict()
+    def destination_vector(self, frame: str | None = None) -> np.ndarray:
+        """(2,) [m] from the ego to its destination: world axes, or the car's ("ego": x ahead, y to the left).
+        `frame=None`: the task's `destination_frame`."""
         destination = (self.destination - self.xy).astype(np.float32)
-        if self.destination_frame == "ego":  # x ahead, y to the left [m]
+        if (frame or self.destination_frame) == "ego":
             c, s = np.cos(self.yaw), np.sin(self.yaw)
             destination = np.array([c * destination[0] + s * destination[1],
                                     -s * destination[0] + c * destination[1]], np.float32)
+        return destination
+
+    def features_observation(self, physics: Physics, destination_frame: str | None = None) -> collections.OrderedDict:
+        """The "features" observation of the current state whatever `observation` is (a privileged teacher's
+        input while a camera policy drives)."""
+        return collections.OrderedDict(ego=self._ego_vector(), destination=self.destination_vector(destination_frame),
+                                       road_users=self._nearest_road_users(physics))
+
+    def get_observation(self, physics: Physics) -> collections.OrderedDict:
+        obs = collections.OrderedDict()
+        destination = self.destination_vector()
         if self.observation == "camera":
             size = self.image_size
             rgb = self.render_camera(physics, "ego/front", size, size)
@@ -327,10 +339,7 @@ class RoundaboutTask(DrivingTask):
             if self.camera_ego:
                 obs["ego"] = self._ego_vector()
             return obs
-        obs["ego"] = self._ego_vector()
-        obs["destination"] = destination
-        obs["road_users"] = self._nearest_road_users(physics)
-        return obs
+        return self.features_observation(physics)
 
     def _ego_vector(self) -> np.ndarray:
         """(6,) speed [m/s], yaw rate [rad/s], heading error [rad], lateral offset [m], cos/sin(yaw)."""
