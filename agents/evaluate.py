@@ -89,6 +89,7 @@ def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None
             "speed_m_s": round(distance / elapsed, 3) if elapsed > 0 else 0.0,
             "route_completion": round(float(info["route_completion"]), 4) if "route_completion" in info else None,
             "success": bool(info.get("success", False)), "collision": bool(info.get("collision", False)),
+            "off_road": bool(info.get("off_road", False)),  # the whole footprint off the road at some step
             "end": end_reason(info, terminated, truncated),
         })
     env.close()
@@ -108,6 +109,9 @@ def summarize(rows: list[dict]) -> dict[str, float]:
         "avg_speed_m_s": round(mean("speed_m_s"), 3), "avg_distance_m": round(mean("distance_m"), 2),
         "avg_steps": round(mean("steps"), 1), "success_pct": round(100 * mean("success"), 1),
         "collision_pct": round(100 * mean("collision"), 1),
+        # arrivals that never left the road entirely (eq. 12 charges off-road driving only 0.05 per step)
+        "success_on_road_pct": round(100 * float(np.mean([r["success"] and not r.get("off_road", False)
+                                                          for r in rows])), 1),
         **({} if np.isnan(completion[0]) else {
             "route_completion_mean": round(float(np.mean(completion)), 4),
             "route_completion_min": round(float(np.min(completion)), 4),
