@@ -228,3 +228,21 @@ def test_leaving_the_route_ends_the_episode_unless_disabled():
     assert 5.0 < max_offset < 7.0  # ended on the first step past 5 m
     discount, info, max_offset = ends[None]
     assert not info["off_route"] and max_offset > 7.0
+
+
+def test_off_road_ends_the_episode_only_when_asked():
+    """Full right lock from the yield line runs over the verge within a few metres: with off_road_ends the
+    episode ends there (terminated, not a success); by default (the study) it goes on until off the route."""
+    lengths = {}
+    for off_road_ends in (True, False):
+        env = suite.load("roundabout", "d120", {"random": 2, "off_road_ends": off_road_ends,
+                                                "road_users": {"car": 0, "pedestrian": 0}})
+        env.reset()
+        for _ in range(80):
+            timestep = env.step(np.array([0.4, -1.0, 0.0]))  # full right lock
+            if timestep.last():
+                break
+        info = env.task.info
+        assert info["off_road"] and timestep.discount == 0.0 and not info["success"]
+        lengths[off_road_ends] = (info["steps"], info["off_route"])
+    assert lengths[True][0] < lengths[False][0] and not lengths[True][1] and lengths[False][1]

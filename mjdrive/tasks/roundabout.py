@@ -37,7 +37,10 @@ steps a missed exit outscores arriving (+100) many times over. Pass `off_route=N
 `off_route_penalty` (default 0, the study's eq. 12) is subtracted on that step (term "off_route");
 `destination_frame="ego"` gives the destination vector in the car's frame (x ahead, y left) instead of
 the study's world frame. `camera_ego=True` adds the features' ego vector to the "camera" observation (the
-study's camera agent sees only frames and the destination).
+study's camera agent sees only frames and the destination). Leaving the road costs only 0.05 per step
+under eq. 12, and a learner may find that a shortcut across the verge (CARLA's kerbs and street furniture
+would stop it): `off_road_ends=True` ends the episode (terminated, not a success) once the whole footprint
+is off the road.
 """
 
 from __future__ import annotations
@@ -126,6 +129,7 @@ class RoundaboutTask(DrivingTask):
         off_route_penalty: float = 0.0,  # subtracted when the episode ends off the route (the study has none)
         destination_frame: str = "world",  # "world" (§4.2) or "ego": the destination vector in the car's frame
         camera_ego: bool = False,  # "camera" observation: add the features' ego vector (not in the study)
+        off_road_ends: bool = False,  # end the episode once the whole footprint is off the road (not in the study)
         traffic_config: TrafficConfig | None = None,
         random=None,
     ):
@@ -155,6 +159,7 @@ class RoundaboutTask(DrivingTask):
             raise ValueError(f"destination_frame must be 'world' or 'ego', got {destination_frame!r}")
         self.destination_frame = destination_frame
         self.camera_ego = bool(camera_ego)
+        self.off_road_ends = bool(off_road_ends)
         self.traffic = Traffic(road_map, kinds, traffic_config)
         self.traffic.bind(model)
         self._kind_onehot = np.eye(len(KIND_NAMES), dtype=np.float32)[self.traffic.kind_id]
@@ -280,7 +285,8 @@ class RoundaboutTask(DrivingTask):
         return self._step_reward
 
     def get_termination(self, physics: Physics) -> float | None:
-        if self.info["collision"] or self.info["success"] or self.info["off_route"]:
+        info = self.info
+        if info["collision"] or info["success"] or info["off_route"] or (self.off_road_ends and info["off_road"]):
             return 0.0
         return None
 
