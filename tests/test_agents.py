@@ -113,7 +113,7 @@ def test_corrupt_wrong_and_mismatched_checkpoints_raise_clear_errors(tmp_path):
 
 
 def test_resume_continues_from_the_checkpoint(tmp_path):
-    config = _config("dqn", ["steps=128", *OFF_POLICY, "tensorboard=true"])
+    config = _config("dqn", ["steps=128", *OFF_POLICY, "algorithm.resume_refill=32", "tensorboard=true"])
     train(config, tmp_path, progress=False)
     assert list((tmp_path / "tb").glob("events.out.tfevents.*"))
     first = load_checkpoint(tmp_path / "checkpoint.pt")
@@ -123,6 +123,20 @@ def test_resume_continues_from_the_checkpoint(tmp_path):
     assert second["state"]["updates"] > first["state"]["updates"]
     with pytest.raises(CheckpointError, match="config 'task' differs"):
         train({**config, "steps": 512, "task": "waypoints/four_routes"}, tmp_path, resume=True, progress=False)
+
+
+def test_resumed_off_policy_run_refills_its_buffer_before_updating(tmp_path):
+    """The replay buffer is not checkpointed: a resumed run must not take gradient steps on a handful of
+    fresh transitions (that overfits the critics); it waits for `resume_refill` of them."""
+    config = _config("sac", ["steps=128", *OFF_POLICY, "algorithm.resume_refill=96"])
+    train(config, tmp_path, progress=False)
+    updates = load_checkpoint(tmp_path / "checkpoint.pt")["state"]["updates"]
+    assert updates > 0  # a fresh run updates once learning_starts is reached
+    train({**config, "steps": 192}, tmp_path, resume=True, progress=False)  # 64 new transitions < 96
+    assert load_checkpoint(tmp_path / "checkpoint.pt")["state"]["updates"] == updates
+    train({**config, "steps": 320}, tmp_path, resume=True, progress=False)  # 128 new ones: 32 past the refill
+    resumed = load_checkpoint(tmp_path / "checkpoint.pt")["state"]["updates"]
+    assert resumed - updates == pytest.approx(0.5 * 32, abs=2)  # updates_per_step x transitions past it
 
 
 def test_evaluate_reports_route_completion(tmp_path):
