@@ -56,6 +56,7 @@ def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None
     """Roll out the policy for `episodes` episodes (seeds seed, seed+1, ...); returns rows and a summary.
     With `record_dir`, every episode is also written there as an MCAP log (`mjdrive replay`/`logs`).
     `progress`: the label of a tqdm bar over the episodes (on stderr); None: no bar."""
+    import torch
     from tqdm import tqdm
 
     agent, payload = load_agent(checkpoint)
@@ -73,6 +74,8 @@ def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None
     for episode in tqdm(range(episodes), desc=progress, unit="episode", disable=progress is None,
                         dynamic_ncols=True):
         obs, info = env.reset(seed=seed + episode)
+        if not deterministic:
+            torch.manual_seed(seed + episode)  # sampled actions are reproducible per episode too
         total, steps = 0.0, 0
         while True:
             action = agent.act({key: value[None] for key, value in obs.items()}, deterministic)[0]

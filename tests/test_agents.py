@@ -147,6 +147,10 @@ def test_evaluate_reports_route_completion(tmp_path):
     assert result["rows"][0]["end"] in ("time_limit", "lane_invasion", "off_road", "collision", "arrived")
     markdown = to_markdown(result)
     assert "route completion mean" in markdown and markdown.count("\n| ") >= 4
+    sampled = [evaluate(policy, episodes=2, task_kwargs={"time_limit": 2.0}, deterministic=False)["rows"]
+               for _ in range(2)]
+    assert sampled[0] == sampled[1]  # sampled actions are seeded per episode
+    assert [r["reward"] for r in sampled[0]] != [r["reward"] for r in result["rows"]]
 
 
 def test_rsl_rl_vecenv_groups_actions_and_time_outs():

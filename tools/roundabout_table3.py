@@ -1,5 +1,7 @@
-"""Study 000's Table 3 for trained agents: each checkpoint evaluated for N greedy episodes at every roundabout
-density, beside the paper's figures; optional training wall-clock from the run's episodes.csv.
+"""Study 000's Table 3 for trained agents at every roundabout density, beside the paper's figures.
+
+Each checkpoint runs N episodes per density (greedy actions, or sampled with --stochastic); optional training
+wall-clock from the run's episodes.csv.
 
     python tools/roundabout_table3.py --episodes 50 \\
         --agent SAC results/checkpoints/sac_camera_roundabout.pt results/roundabout/sac_camera_episodes.csv \\
@@ -67,6 +69,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--episodes", type=int, default=50)
     parser.add_argument("--levels", nargs="+", default=list(DENSITIES), choices=list(DENSITIES))
     parser.add_argument("--seed", type=int, default=10_000)
+    parser.add_argument("--stochastic", action="store_true",
+                        help="sample actions from the policy (torch seeded per episode) instead of greedy ones")
     parser.add_argument("--out", default=None, help="write OUT.md and OUT.json")
     args = parser.parse_args(argv)
     for spec in args.agent:
@@ -77,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     for name, checkpoint, *csv_path in args.agent:
         for level in args.levels:
             result = evaluate(checkpoint, episodes=args.episodes, task=f"roundabout/{level}", seed=args.seed,
-                              progress=f"{name} {level}")
+                              deterministic=not args.stochastic, progress=f"{name} {level}")
             results.setdefault(name, {})[level] = result
             s = result["summary"]
             rows.append(f"| {name} | {level} | {s['avg_reward']:.2f} | {s['avg_time_s']:.2f} | "
@@ -94,14 +98,22 @@ def main(argv: list[str] | None = None) -> int:
         training.append(line + ".")
     paper_rows = [f"| {name} (paper) | {level} | " + " | ".join(str(v) for v in values) + " | - | - |"
                   for name, levels in PAPER.items() for level, values in levels.items()]
-    command = "python tools/roundabout_table3.py --episodes {} {}".format(
-        args.episodes, " ".join("--agent " + shlex.join(spec) for spec in args.agent))
+    options = [f"--episodes {args.episodes}"]
+    if args.levels != list(DENSITIES):
+        options.append("--levels " + " ".join(args.levels))
+    if args.seed != 10_000:
+        options.append(f"--seed {args.seed}")
+    if args.stochastic:
+        options.append("--stochastic")
+    command = "python tools/roundabout_table3.py {} {}".format(
+        " ".join(options), " ".join("--agent " + shlex.join(spec) for spec in args.agent))
+    policy = "sampled-action (stochastic policy)" if args.stochastic else "greedy"
     lines = [
         "# Roundabout (study 000), Table 3: trained agents at every density",
         "",
         f"`{command}" + (f" --out {args.out}`" if args.out else "`"),
         "",
-        f"{args.episodes} greedy episodes per agent and density (seeds {args.seed}...{args.seed + args.episodes - 1},"
+        f"{args.episodes} {policy} episodes per agent and density (seeds {args.seed}...{args.seed + args.episodes - 1},"
         " the same episodes for every agent). Time, speed, distance and steps are means over all episodes, as in"
         " the paper (whose own figures follow for comparison). The last column counts only arrivals whose"
         " footprint never left the road entirely (eq. 12 charges off-road driving 0.05 per step, so an agent may"
