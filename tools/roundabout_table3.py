@@ -98,20 +98,12 @@ def main(argv: list[str] | None = None) -> int:
         training.append(line + ".")
     paper_rows = [f"| {name} (paper) | {level} | " + " | ".join(str(v) for v in values) + " | - | - |"
                   for name, levels in PAPER.items() for level, values in levels.items()]
-    options = [f"--episodes {args.episodes}"]
-    if args.levels != list(DENSITIES):
-        options.append("--levels " + " ".join(args.levels))
-    if args.seed != 10_000:
-        options.append(f"--seed {args.seed}")
-    if args.stochastic:
-        options.append("--stochastic")
-    command = "python tools/roundabout_table3.py {} {}".format(
-        " ".join(options), " ".join("--agent " + shlex.join(spec) for spec in args.agent))
+    command = "python tools/roundabout_table3.py " + shlex.join(sys.argv[1:] if argv is None else argv)
     policy = "sampled-action (stochastic policy)" if args.stochastic else "greedy"
     lines = [
         "# Roundabout (study 000), Table 3: trained agents at every density",
         "",
-        f"`{command}" + (f" --out {args.out}`" if args.out else "`"),
+        f"`{command}`",
         "",
         f"{args.episodes} {policy} episodes per agent and density (seeds {args.seed}...{args.seed + args.episodes - 1},"
         " the same episodes for every agent). Time, speed, distance and steps are means over all episodes, as in"
