@@ -238,3 +238,32 @@ def test_episode_log_is_flushed_as_episodes_end_and_resume_drops_later_rows(tmp_
     assert [r.split(",")[:2] for r in rows[1:]] == [["1", "20"], ["2", "20"], ["3", "40"]]
     walls = [float(r.split(",")[2]) for r in rows[1:]]
     assert walls == sorted(walls)  # wall-clock counts on from the resumed checkpoint
+
+
+def test_select_checkpoint_ranks_a_runs_checkpoints_and_exports_the_chosen_one(tmp_path):
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(
+        "select_checkpoint", Path(__file__).resolve().parents[1] / "tools" / "select_checkpoint.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    assert sorted([tool.rank_key({"success_pct": 90, "collision_pct": 10, "avg_reward": 5}),
+                   tool.rank_key({"success_pct": 95, "collision_pct": 5, "avg_reward": 1}),
+                   tool.rank_key({"success_pct": 90, "collision_pct": 5, "avg_reward": 1})])[0] == (-95, 5, -1)
+
+    run = tmp_path / "run"
+    train(_config("sac", ["steps=256", *OFF_POLICY, "checkpoint_every=128"]), run, progress=False)
+    assert [step for step, _ in tool.run_checkpoints(run)] == [128, 256]
+    assert [step for step, _ in tool.run_checkpoints(run, first=200)] == [256]
+    with pytest.raises(FileNotFoundError, match="no checkpoints"):
+        tool.run_checkpoints(run, first=1000)
+    out = tmp_path / "selection"
+    tool.main([str(run), "--episodes", "1", "--export", str(tmp_path / "chosen.pt"), "--out", str(out)])
+    report = json.loads(out.with_suffix(".json").read_text())
+    assert [r["step"] for r in report["checkpoints"]] == [128, 256]
+    best = min(report["checkpoints"], key=lambda r: tool.rank_key(r["summary"]))
+    assert report["chosen"] == best["step"]
+    exported = load_checkpoint(tmp_path / "chosen.pt")
+    assert exported["step"] == best["step"] and exported["extra"]["inference_only"]
+    assert "**(chosen)**" in out.with_suffix(".md").read_text()

@@ -1,0 +1,95 @@
+"""Choose a run's checkpoint on validation episodes (seeds apart from the test table's), and export it.
+
+Success swings by +-10 points between checkpoints 10k steps apart, so the reported checkpoint is chosen on
+separate seeds (default 20000..., the Table 3 tool uses 10000...) and then tested on the table's seeds:
+
+    python tools/select_checkpoint.py runs/sac_rb_camera_state --first 200000 --episodes 40 \\
+        --export results/checkpoints/sac_camera_state_roundabout.pt \\
+        --out results/roundabout/sac_camera_state_selection/summary
+
+Ranks by success %, then fewer collisions, then higher average reward. Writes OUT.md and OUT.json; greedy
+actions; the task (and its kwargs) the run trained on unless --task is given.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import shlex
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from agents.evaluate import evaluate  # noqa: E402
+from agents.train import export_policy  # noqa: E402
+
+
+def run_checkpoints(run_dir: Path, first: int = 0, last: int | None = None) -> list[tuple[int, Path]]:
+    """(env step, path) of the run's periodic checkpoints (checkpoints/step_N.pt) with first <= N <= last."""
+    found = []
+    for path in (run_dir / "checkpoints").glob("step_*.pt"):
+        match = re.fullmatch(r"step_(\d+)\.pt", path.name)
+        if match and first <= int(match[1]) <= (last if last is not None else float("inf")):
+            found.append((int(match[1]), path))
+    if not found:
+        raise FileNotFoundError(f"no checkpoints/step_N.pt with {first} <= N <= {last} in {run_dir}")
+    return sorted(found)
+
+
+def rank_key(summary: dict) -> tuple[float, float, float]:
+    """Sort key, best first: most successes, then fewest collisions, then the highest average reward."""
+    return (-summary["success_pct"], summary["collision_pct"], -summary["avg_reward"])
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run_dir", type=Path, help="a `mjdrive train` output folder")
+    parser.add_argument("--first", type=int, default=0, help="lowest env step to consider")
+    parser.add_argument("--last", type=int, default=None, help="highest env step to consider")
+    parser.add_argument("--episodes", type=int, default=40)
+    parser.add_argument("--seed", type=int, default=20_000, help="first validation seed")
+    parser.add_argument("--task", default=None, help="DOMAIN/TASK (default: the run's)")
+    parser.add_argument("--export", type=Path, default=None, help="write the chosen policy (acting network only)")
+    parser.add_argument("--out", type=Path, default=None, help="write OUT.md and OUT.json")
+    args = parser.parse_args(argv)
+
+    start = time.perf_counter()
+    results = []
+    for step, path in run_checkpoints(args.run_dir, args.first, args.last):
+        result = evaluate(path, episodes=args.episodes, task=args.task, seed=args.seed, progress=f"step {step:,}")
+        results.append({"step": step, "checkpoint": str(path), "summary": result["summary"],
+                        "task": result["task"]})
+        s = result["summary"]
+        print(f"step {step:>9,}: success {s['success_pct']:5.1f} %, collision {s['collision_pct']:5.1f} %, "
+              f"avg reward {s['avg_reward']:8.2f}", flush=True)
+    best = min(results, key=lambda r: rank_key(r["summary"]))
+    if args.export:
+        export_policy(best["checkpoint"], args.export)
+
+    command = "python tools/select_checkpoint.py " + shlex.join(sys.argv[1:] if argv is None else argv)
+    lines = [f"# Checkpoint selection: {args.run_dir}", "", f"`{command}`", "",
+             f"{args.episodes} greedy episodes per checkpoint on {best['task']}, seeds "
+             f"{args.seed}...{args.seed + args.episodes - 1}; ranked by success, then collisions, then reward.",
+             "", "| env step | success % | collision % | avg reward | avg time (s) | avg speed (m/s) |",
+             "| ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for r in results:
+        s, mark = r["summary"], " **(chosen)**" if r is best else ""
+        lines.append(f"| {r['step']:,}{mark} | {s['success_pct']:.1f} | {s['collision_pct']:.1f} | "
+                     f"{s['avg_reward']:.2f} | {s['avg_time_s']:.2f} | {s['avg_speed_m_s']:.2f} |")
+    lines += ["", f"Chosen: step {best['step']:,}" + (f", exported to `{args.export}`" if args.export else "") + ".",
+              f"Evaluation wall time {time.perf_counter() - start:.0f} s."]
+    report = "\n".join(lines)
+    print(report)
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.with_suffix(".md").write_text(report + "\n")
+        args.out.with_suffix(".json").write_text(json.dumps({"command": command, "chosen": best["step"],
+                                                             "checkpoints": results}, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
