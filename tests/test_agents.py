@@ -267,3 +267,7 @@ def test_select_checkpoint_ranks_a_runs_checkpoints_and_exports_the_chosen_one(t
     exported = load_checkpoint(tmp_path / "chosen.pt")
     assert exported["step"] == best["step"] and exported["extra"]["inference_only"]
     assert "**(chosen)**" in out.with_suffix(".md").read_text()
+    tool.main([str(run), "--steps", "256", "--episodes", "1", "--out", str(out)])
+    assert [r["step"] for r in json.loads(out.with_suffix(".json").read_text())["checkpoints"]] == [256]
+    with pytest.raises(SystemExit):
+        tool.main([str(run), "--steps", "300", "--episodes", "1"])

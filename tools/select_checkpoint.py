@@ -49,6 +49,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("run_dir", type=Path, help="a `mjdrive train` output folder")
     parser.add_argument("--first", type=int, default=0, help="lowest env step to consider")
     parser.add_argument("--last", type=int, default=None, help="highest env step to consider")
+    parser.add_argument("--steps", type=int, nargs="+", default=None,
+                        help="only these env steps (e.g. the best few, again on more seeds)")
     parser.add_argument("--episodes", type=int, default=40)
     parser.add_argument("--seed", type=int, default=20_000, help="first validation seed")
     parser.add_argument("--task", default=None, help="DOMAIN/TASK (default: the run's)")
@@ -58,7 +60,14 @@ def main(argv: list[str] | None = None) -> int:
 
     start = time.perf_counter()
     results = []
-    for step, path in run_checkpoints(args.run_dir, args.first, args.last):
+    checkpoints = run_checkpoints(args.run_dir, args.first, args.last)
+    if args.steps:
+        missing = sorted(set(args.steps) - {step for step, _ in checkpoints})
+        if missing:
+            parser.error(f"no checkpoint for steps {missing} in {args.run_dir}/checkpoints; "
+                         f"there are {[step for step, _ in checkpoints]}")
+        checkpoints = [(step, path) for step, path in checkpoints if step in args.steps]
+    for step, path in checkpoints:
         result = evaluate(path, episodes=args.episodes, task=args.task, seed=args.seed, progress=f"step {step:,}")
         results.append({"step": step, "checkpoint": str(path), "summary": result["summary"],
                         "task": result["task"]})
