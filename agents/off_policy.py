@@ -4,6 +4,10 @@ An off-policy agent provides:
     explore(obs, step) -> (stored_action, env_action)   batched; random before `learning_starts`
     update(batch) -> dict[str, float]                   one gradient step on a replay batch
     state_dict() / load_state_dict(state)               networks, optimizers, counters
+
+Optionally a second buffer of demonstrations by a scripted driver (`collect_demonstrations`) supplies a fixed
+fraction of every update batch, as in RLPD (Ball et al. 2023, "Efficient online reinforcement learning with
+offline data": symmetric sampling of offline and online data, no pre-training).
 """
 
 from __future__ import annotations
@@ -12,14 +16,22 @@ import time
 from typing import Any
 
 import numpy as np
+import torch
 
-from agents.common import ReplayBuffer, Run
+from agents.common import ObsBatch, ReplayBuffer, Run, split_task
 from mjdrive.envs.batched import BatchedEnv
 
+DEMONSTRATION_DEFAULTS = {
+    "policy": "autopilot",  # a scripted policy of mjdrive.policies (privileged: it reads the task's state)
+    "steps": 20_000,  # [transitions] collected before training, kept for the whole run
+    "fraction": 0.5,  # of every update batch drawn from the demonstrations (RLPD: 0.5)
+}
 
-def run_off_policy(agent: Any, env: BatchedEnv, run: Run, buffer: ReplayBuffer, hp: dict, seed: int) -> None:
+
+def run_off_policy(agent: Any, env: BatchedEnv, run: Run, buffer: ReplayBuffer, hp: dict, seed: int,
+                   demonstrations: ReplayBuffer | None = None, demo_fraction: float = 0.0) -> None:
     """Train `agent` until `run.total_steps` env steps; `hp`: learning_starts, batch_size, updates_per_step,
-    reward_scale, log_every, resume_refill.
+    reward_scale, log_every, resume_refill. With `demonstrations`, `demo_fraction` of each batch comes from them.
 
     A resumed run starts with an empty replay buffer (checkpoints do not keep it): it collects
     `resume_refill` transitions with the resumed policy before updating again, since gradient steps on a
@@ -29,7 +41,9 @@ def run_off_policy(agent: Any, env: BatchedEnv, run: Run, buffer: ReplayBuffer, 
     updates_per_step = float(hp.get("updates_per_step", 1.0))  # gradient steps per env transition
     reward_scale = float(hp.get("reward_scale", 1.0))
     log_every = int(hp.get("log_every", 1000))
-    min_buffer = int(hp["batch_size"])  # transitions in the buffer before updates
+    batch_size = int(hp["batch_size"])
+    demo_batch = round(batch_size * demo_fraction) if demonstrations is not None and demonstrations.size else 0
+    min_buffer = batch_size  # transitions in the buffer before updates
     if run.step > 0:
         min_buffer = max(min_buffer, min(int(hp.get("resume_refill", 10_000)), buffer.capacity))
     start_step, start_time, debt, next_log = run.step, time.perf_counter(), 0.0, run.step + log_every
@@ -44,7 +58,10 @@ def run_off_policy(agent: Any, env: BatchedEnv, run: Run, buffer: ReplayBuffer, 
         if run.step >= learning_starts and buffer.size >= min_buffer:
             debt += updates_per_step * env.num_envs
             while debt >= 1.0:
-                for name, value in agent.update(buffer.sample(hp["batch_size"])).items():
+                batch = buffer.sample(batch_size - demo_batch)
+                if demo_batch:
+                    batch = concat_batches(batch, demonstrations.sample(demo_batch))
+                for name, value in agent.update(batch).items():
                     losses.setdefault(name, []).append(value)
                 debt -= 1.0
         if run.step >= next_log:
@@ -57,3 +74,60 @@ def run_off_policy(agent: Any, env: BatchedEnv, run: Run, buffer: ReplayBuffer, 
     if losses:
         run.scalars({name: float(np.mean(values)) for name, values in losses.items()})
     run.save(agent.algo, agent.state_dict(), periodic=False)
+
+
+def concat_batches(first: dict, second: dict) -> dict:
+    """Two replay samples (ReplayBuffer.sample) as one."""
+    out = {}
+    for key, value in first.items():
+        if isinstance(value, ObsBatch):
+            image = None if value.image is None else torch.cat([value.image, second[key].image])
+            out[key] = ObsBatch(torch.cat([value.features, second[key].features]), image)
+        else:
+            out[key] = torch.cat([value, second[key]])
+    return out
+
+
+def collect_demonstrations(config: dict, buffer: ReplayBuffer, settings: dict, seed: int,
+                           progress: bool = True) -> dict[str, int]:
+    """Fill `buffer` with `settings["steps"]` transitions of a scripted policy driving the config's task
+    (its actions converted to the learner's action set, rewards scaled by `reward_scale` like the online
+    ones); returns the counts of episodes and of their ends (success, collision)."""
+    from tqdm import tqdm
+
+    from mjdrive.envs import make_env
+    from mjdrive.policies import make_policy
+
+    actions = config.get("actions", "continuous")
+    if actions not in ("continuous", "pedal"):
+        raise ValueError(f"demonstrations need continuous or pedal actions, the config has {actions!r}")
+    domain, name = split_task(config["task"])
+    env = make_env(domain, name, actions=actions, **config.get("task_kwargs", {}))
+    policy = make_policy(settings["policy"], env, seed)
+    space = env.action_space
+    reward_scale = float(config.get("reward_scale", 1.0))
+    counts = {"episodes": 0, "success": 0, "collision": 0}
+    obs, _ = env.reset(seed=seed + 10**9)
+    bar = tqdm(total=int(settings["steps"]), unit="step", desc=f"demonstrations ({settings['policy']})",
+               disable=not progress, dynamic_ncols=True)
+    try:
+        for _ in range(int(settings["steps"])):
+            throttle, steer, brake = policy(obs)
+            action = np.array([throttle - brake, steer], np.float32) if actions == "pedal" else \
+                np.array([throttle, steer, brake], np.float32)
+            action = np.clip(action, space.low, space.high)
+            next_obs, reward, terminated, truncated, info = env.step(action)
+            stored = 2.0 * (action - space.low) / (space.high - space.low) - 1.0  # the learner's [-1, 1] box
+            buffer.add({k: v[None] for k, v in obs.items()}, stored[None], np.array([reward * reward_scale]),
+                       {k: v[None] for k, v in next_obs.items()}, np.array([terminated]))
+            obs = next_obs
+            bar.update(1)
+            if terminated or truncated:
+                counts["episodes"] += 1
+                counts["success"] += bool(info.get("success"))
+                counts["collision"] += bool(info.get("collision"))
+                obs, _ = env.reset(seed=seed + 10**9 + counts["episodes"])
+    finally:
+        bar.close()
+        env.close()
+    return counts

@@ -7,6 +7,7 @@ checkpoints/step_N.pt (periodic) and policy.pt (the acting network only, for eva
 from __future__ import annotations
 
 import copy
+import json
 from pathlib import Path
 
 import numpy as np
@@ -85,7 +86,7 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
 
             trpo.train(config, run, state)
         else:
-            from agents.off_policy import run_off_policy
+            from agents.off_policy import DEMONSTRATION_DEFAULTS, collect_demonstrations, run_off_policy
 
             env = make_batched_env(config)
             agent = agent_class(algo)(config, env.single_observation_space, env.single_action_space)
@@ -97,7 +98,21 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
                                   np.int64 if discrete else np.float32)
             hp = {**agent.hp, "reward_scale": config.get("reward_scale", 1.0),
                   "log_every": config.get("log_every", 1000)}
-            run_off_policy(agent, env, run, buffer, hp, seed)
+            demonstrations, fraction = None, 0.0
+            if config.get("demonstrations"):
+                settings = {**DEMONSTRATION_DEFAULTS, **config["demonstrations"]}
+                unknown = set(settings) - set(DEMONSTRATION_DEFAULTS)
+                if unknown:
+                    raise ValueError(f"unknown demonstrations settings {sorted(unknown)}; "
+                                     f"valid: {sorted(DEMONSTRATION_DEFAULTS)}")
+                if not 0.0 <= float(settings["fraction"]) < 1.0:
+                    raise ValueError(f"demonstrations.fraction must be in [0, 1), got {settings['fraction']}")
+                demonstrations = ReplayBuffer(int(settings["steps"]), agent.layout, buffer.actions.shape[1:],
+                                              buffer.actions.dtype)
+                counts = collect_demonstrations(config, demonstrations, settings, seed, progress)
+                (out / "demonstrations.json").write_text(json.dumps({**settings, **counts}, indent=1))
+                fraction = float(settings["fraction"])
+            run_off_policy(agent, env, run, buffer, hp, seed, demonstrations, fraction)
             env.close()
     finally:
         run.close()

@@ -271,3 +271,48 @@ def test_select_checkpoint_ranks_a_runs_checkpoints_and_exports_the_chosen_one(t
     assert [r["step"] for r in json.loads(out.with_suffix(".json").read_text())["checkpoints"]] == [256]
     with pytest.raises(SystemExit):
         tool.main([str(run), "--steps", "300", "--episodes", "1"])
+
+
+def test_sac_with_demonstrations_collects_them_and_mixes_them_into_updates(tmp_path, monkeypatch):
+    """RLPD-style demonstrations: the scripted driver's transitions are collected first (in the learner's
+    action set, rewards scaled), then every update batch holds `fraction` of them."""
+    from agents import off_policy
+
+    config = _config("sac", ["steps=128", *OFF_POLICY, "task=roundabout/d120", "actions=pedal",
+                             "demonstrations={policy: autopilot, steps: 300, fraction: 0.25}"])
+    sizes = []
+    concat = off_policy.concat_batches
+
+    def counting_concat(first, second):
+        sizes.append((len(first["rewards"]), len(second["rewards"])))
+        return concat(first, second)
+
+    monkeypatch.setattr(off_policy, "concat_batches", counting_concat)
+    train(config, tmp_path, progress=False)
+    summary = json.loads((tmp_path / "demonstrations.json").read_text())
+    assert summary["steps"] == 300 and summary["policy"] == "autopilot"
+    assert summary["episodes"] >= 1 and summary["success"] == summary["episodes"] and summary["collision"] == 0
+    assert sizes and set(sizes) == {(12, 4)}  # batch 16, a quarter from the demonstrations
+
+    from agents.common import ReplayBuffer
+    from mjdrive.envs import make_env
+    from mjdrive.envs.batched import ObservationLayout
+
+    env = make_env("roundabout", "d120", actions="pedal", observation="features")
+    buffer = ReplayBuffer(300, ObservationLayout(env.observation_space), (2,))
+    env.close()
+    off_policy.collect_demonstrations(config, buffer, {"policy": "autopilot", "steps": 300}, seed=0,
+                                      progress=False)
+    assert buffer.size == 300 and np.abs(buffer.actions).max() <= 1.0
+    assert buffer.actions[:, 0].max() > 0.1 and buffer.actions[:, 0].min() < -0.1  # it drives and brakes
+    assert buffer.terminated.sum() == summary["episodes"]  # every demonstration episode arrived
+
+
+def test_bad_demonstration_settings_raise_clear_errors(tmp_path):
+    base = ["steps=64", *OFF_POLICY, "task=roundabout/d120", "actions=pedal"]
+    with pytest.raises(ValueError, match="unknown demonstrations settings"):
+        train(_config("sac", [*base, "demonstrations={policy: autopilot, episodes: 3}"]), tmp_path, progress=False)
+    with pytest.raises(ValueError, match="fraction"):
+        train(_config("sac", [*base, "demonstrations={fraction: 1.0}"]), tmp_path, progress=False)
+    with pytest.raises(ValueError, match="unknown policy"):
+        train(_config("sac", [*base, "demonstrations={policy: teleport, steps: 10}"]), tmp_path, progress=False)
