@@ -26,6 +26,7 @@ DEMONSTRATION_DEFAULTS = {
     "steps": 20_000,  # [transitions] collected before training, kept for the whole run
     "fraction": 0.5,  # of every update batch drawn from the demonstrations (RLPD: 0.5)
 }
+DEMONSTRATORS = ("autopilot", "pure_pursuit")  # the scripted drivers of mjdrive.policies worth imitating
 
 
 def run_off_policy(agent: Any, env: BatchedEnv, run: Run, buffer: ReplayBuffer, hp: dict, seed: int,
@@ -98,6 +99,8 @@ def collect_demonstrations(config: dict, buffer: ReplayBuffer, settings: dict, s
     from mjdrive.envs import make_env
     from mjdrive.policies import make_policy
 
+    if settings["policy"] not in DEMONSTRATORS:
+        raise ValueError(f"unknown policy {settings['policy']!r} for demonstrations; valid: {', '.join(DEMONSTRATORS)}")
     actions = config.get("actions", "continuous")
     if actions not in ("continuous", "pedal"):
         raise ValueError(f"demonstrations need continuous or pedal actions, the config has {actions!r}")
