@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from agents.common import ObsBatch, ReplayBuffer, Run, split_task
+from agents.common import ObsBatch, ReplayBuffer, Run, bounded_action_map, split_task
 from mjdrive.envs.batched import BatchedEnv
 
 DEMONSTRATION_DEFAULTS = {
@@ -89,25 +89,40 @@ def concat_batches(first: dict, second: dict) -> dict:
     return out
 
 
-def collect_demonstrations(config: dict, buffer: ReplayBuffer, settings: dict, seed: int,
-                           progress: bool = True) -> dict[str, int]:
-    """Fill `buffer` with `settings["steps"]` transitions of a scripted policy driving the config's task
-    (its actions converted to the learner's action set, rewards scaled by `reward_scale` like the online
-    ones); returns the counts of episodes and of their ends (success, collision)."""
-    from tqdm import tqdm
-
-    from mjdrive.envs import make_env
-    from mjdrive.policies import make_policy
-
+def demonstration_settings(config: dict) -> dict:
+    """The config's `demonstrations` merged over DEMONSTRATION_DEFAULTS; ValueError for unknown keys, a
+    fraction outside [0, 1), a policy not in DEMONSTRATORS, or actions other than continuous/pedal."""
+    settings = {**DEMONSTRATION_DEFAULTS, **config["demonstrations"]}
+    unknown = set(settings) - set(DEMONSTRATION_DEFAULTS)
+    if unknown:
+        raise ValueError(f"unknown demonstrations settings {sorted(unknown)}; valid: {sorted(DEMONSTRATION_DEFAULTS)}")
+    if not 0.0 <= float(settings["fraction"]) < 1.0:
+        raise ValueError(f"demonstrations.fraction must be in [0, 1), got {settings['fraction']}")
     if settings["policy"] not in DEMONSTRATORS:
         raise ValueError(f"unknown policy {settings['policy']!r} for demonstrations; valid: {', '.join(DEMONSTRATORS)}")
     actions = config.get("actions", "continuous")
     if actions not in ("continuous", "pedal"):
         raise ValueError(f"demonstrations need continuous or pedal actions, the config has {actions!r}")
+    return settings
+
+
+def collect_demonstrations(config: dict, buffer: ReplayBuffer, settings: dict, seed: int,
+                           progress: bool = True) -> dict[str, int]:
+    """Fill `buffer` with `settings["steps"]` transitions of the scripted `settings["policy"]` driving the
+    config's task (settings checked by `demonstration_settings`; actions converted to the learner's action set,
+    rewards scaled by `reward_scale` like the online ones); returns the counts of episodes, successes and
+    collisions."""
+    from tqdm import tqdm
+
+    from mjdrive.envs import make_env
+    from mjdrive.policies import make_policy
+
+    actions = config.get("actions", "continuous")
     domain, name = split_task(config["task"])
     env = make_env(domain, name, actions=actions, **config.get("task_kwargs", {}))
     policy = make_policy(settings["policy"], env, seed)
     space = env.action_space
+    scale, bias = (t.numpy() for t in bounded_action_map(space))
     reward_scale = float(config.get("reward_scale", 1.0))
     counts = {"episodes": 0, "success": 0, "collision": 0}
     obs, _ = env.reset(seed=seed + 10**9)
@@ -120,7 +135,7 @@ def collect_demonstrations(config: dict, buffer: ReplayBuffer, settings: dict, s
                 np.array([throttle, steer, brake], np.float32)
             action = np.clip(action, space.low, space.high)
             next_obs, reward, terminated, truncated, info = env.step(action)
-            stored = 2.0 * (action - space.low) / (space.high - space.low) - 1.0  # the learner's [-1, 1] box
+            stored = (action - bias) / scale  # the learner's [-1, 1] box
             buffer.add({k: v[None] for k, v in obs.items()}, stored[None], np.array([reward * reward_scale]),
                        {k: v[None] for k, v in next_obs.items()}, np.array([terminated]))
             obs = next_obs

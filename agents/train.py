@@ -86,7 +86,7 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
 
             trpo.train(config, run, state)
         else:
-            from agents.off_policy import DEMONSTRATION_DEFAULTS, collect_demonstrations, run_off_policy
+            from agents.off_policy import collect_demonstrations, demonstration_settings, run_off_policy
 
             env = make_batched_env(config)
             agent = agent_class(algo)(config, env.single_observation_space, env.single_action_space)
@@ -100,13 +100,7 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
                   "log_every": config.get("log_every", 1000)}
             demonstrations, fraction = None, 0.0
             if config.get("demonstrations"):
-                settings = {**DEMONSTRATION_DEFAULTS, **config["demonstrations"]}
-                unknown = set(settings) - set(DEMONSTRATION_DEFAULTS)
-                if unknown:
-                    raise ValueError(f"unknown demonstrations settings {sorted(unknown)}; "
-                                     f"valid: {sorted(DEMONSTRATION_DEFAULTS)}")
-                if not 0.0 <= float(settings["fraction"]) < 1.0:
-                    raise ValueError(f"demonstrations.fraction must be in [0, 1), got {settings['fraction']}")
+                settings = demonstration_settings(config)
                 demonstrations = ReplayBuffer(int(settings["steps"]), agent.layout, buffer.actions.shape[1:],
                                               buffer.actions.dtype)
                 counts = collect_demonstrations(config, demonstrations, settings, seed, progress)
