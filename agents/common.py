@@ -7,6 +7,7 @@ import copy
 import csv
 import json
 import random
+import re
 import time
 from pathlib import Path
 from typing import Any
@@ -44,6 +45,9 @@ def load_config(name_or_path: str | Path) -> dict[str, Any]:
     return yaml.safe_load(text)
 
 
+SCIENTIFIC = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
+
+
 def apply_overrides(config: dict, pairs: list[str]) -> dict:
     """`a.b=value` pairs (value parsed as YAML: numbers, booleans, lists) applied to a copy of `config`."""
     import yaml
@@ -57,7 +61,10 @@ def apply_overrides(config: dict, pairs: list[str]) -> dict:
         *parents, leaf = key.split(".")
         for part in parents:
             node = node.setdefault(part, {})
-        node[leaf] = yaml.safe_load(value)
+        parsed = yaml.safe_load(value)
+        if isinstance(parsed, str) and SCIENTIFIC.fullmatch(parsed.strip()):
+            parsed = float(parsed)  # YAML 1.1 reads 1e-4 as a string
+        node[leaf] = parsed
     return config
 
 
@@ -279,6 +286,14 @@ def load_checkpoint(path: str | Path, algo: str | None = None) -> dict:
     if algo is not None and payload["algo"] != algo:
         raise CheckpointError(f"{path} holds a {payload['algo']!r} agent, expected {algo!r}")
     return payload
+
+
+def load_optimizer_state(optimizer: torch.optim.Optimizer, state: dict, lr: float) -> None:
+    """Load an optimizer's saved state, then set its learning rate to `lr` (the config's: a resumed run may
+    lower it to fine-tune)."""
+    optimizer.load_state_dict(state)
+    for group in optimizer.param_groups:
+        group["lr"] = float(lr)
 
 
 def load_module_state(module: nn.Module, state: dict, name: str) -> None:

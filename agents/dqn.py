@@ -14,7 +14,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from agents.common import Encoder, ObsBatch, load_module_state, mlp
+from agents.common import Encoder, ObsBatch, load_module_state, load_optimizer_state, mlp
 from mjdrive.envs.batched import ObservationLayout
 
 DEFAULTS = {
@@ -112,7 +112,7 @@ class DQNAgent:
         if inference_only:
             return
         load_module_state(self.q_target, state["q_target"], "DQN target network")
-        self.optimizer.load_state_dict(state["optimizer"])
+        load_optimizer_state(self.optimizer, state["optimizer"], self.hp["lr"])
         self.updates = state["updates"]
 
     def inference_state(self) -> dict:

@@ -20,7 +20,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from agents.common import Encoder, ObsBatch, bounded_action_map, load_module_state, mlp
+from agents.common import Encoder, ObsBatch, bounded_action_map, load_module_state, load_optimizer_state, mlp
 from mjdrive.envs.batched import ObservationLayout
 
 DEFAULTS = {
@@ -195,9 +195,9 @@ class SACAgent:
         load_module_state(self.critic_target, state["critic_target"], "SAC target critic")
         with torch.no_grad():
             self.log_alpha.copy_(state["log_alpha"])
-        self.actor_optimizer.load_state_dict(state["actor_optimizer"])
-        self.critic_optimizer.load_state_dict(state["critic_optimizer"])
-        self.alpha_optimizer.load_state_dict(state["alpha_optimizer"])
+        load_optimizer_state(self.actor_optimizer, state["actor_optimizer"], self.hp["actor_lr"])
+        load_optimizer_state(self.critic_optimizer, state["critic_optimizer"], self.hp["critic_lr"])
+        load_optimizer_state(self.alpha_optimizer, state["alpha_optimizer"], self.hp["critic_lr"])
         self.updates = state["updates"]
 
     def inference_state(self) -> dict:

@@ -28,6 +28,22 @@ ALGOS = ("ppo", "sac", "dqn", "trpo")
 INFERENCE_KEYS = {"sac": ("actor",), "dqn": ("q",), "ppo": ("actor_state_dict",), "trpo": ("policy",)}
 # config keys that must match to resume a run
 RESUME_KEYS = ("algo", "task", "task_kwargs", "actions", "num_envs", "algorithm", "rsl_rl")
+# algorithm keys a resumed run may change (fine-tuning at a lower learning rate); the rest must match
+RESUME_TUNABLE = {"sac": ("actor_lr", "critic_lr", "resume_refill"), "dqn": ("lr", "resume_refill")}
+
+
+def check_resumable(saved: dict, config: dict) -> None:
+    """Raise CheckpointError unless `config` may continue the run saved with config `saved`."""
+    tunable = RESUME_TUNABLE.get(config.get("algo"), ())
+    for key in RESUME_KEYS:
+        old, new = saved.get(key), config.get(key)
+        if key == "algorithm" and isinstance(old, dict) and isinstance(new, dict):
+            old = {k: v for k, v in old.items() if k not in tunable}
+            new = {k: v for k, v in new.items() if k not in tunable}
+        if old != new:
+            hint = f" (a resume may change only {', '.join(tunable)})" if key == "algorithm" and tunable else ""
+            raise CheckpointError(f"cannot resume: config '{key}' differs from the checkpoint's "
+                                  f"({saved.get(key)!r} vs {config.get(key)!r}){hint}")
 
 
 def agent_class(algo: str):
@@ -55,7 +71,8 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
     """Train the learner `config["algo"]` for `config["steps"]` env steps; returns the policy.pt path.
 
     `resume=True` continues from out/checkpoint.pt (networks, optimizers, step and episode counters;
-    an off-policy replay buffer is not saved and refills from the resumed policy).
+    an off-policy replay buffer is not saved and refills from the resumed policy). SAC and DQN may resume
+    with other learning rates (RESUME_TUNABLE), e.g. to fine-tune a checkpoint at a lower one.
     """
     config = copy.deepcopy(config)
     algo = config.get("algo")
@@ -67,10 +84,7 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
     start_step, start_episode, state = 0, 0, None
     if resume:
         payload = load_checkpoint(out / "checkpoint.pt", algo)
-        for key in RESUME_KEYS:
-            if payload["config"].get(key) != config.get(key):
-                raise CheckpointError(f"cannot resume: config '{key}' differs from the checkpoint's "
-                                      f"({payload['config'].get(key)!r} vs {config.get(key)!r})")
+        check_resumable(payload["config"], config)
         start_step, state = payload["step"], payload["state"]
         start_episode = payload["extra"].get("episode", 0)
         set_seed(seed + start_step)

@@ -125,6 +125,22 @@ def test_resume_continues_from_the_checkpoint(tmp_path):
         train({**config, "steps": 512, "task": "waypoints/four_routes"}, tmp_path, resume=True, progress=False)
 
 
+def test_resume_may_lower_the_learning_rate_but_not_change_the_network(tmp_path):
+    """Fine-tuning: a resumed run takes the config's learning rates; structural settings must still match."""
+    config = _config("dqn", ["steps=128", *OFF_POLICY, "algorithm.resume_refill=32"])
+    train(config, tmp_path, progress=False)
+    assert load_checkpoint(tmp_path / "checkpoint.pt")["state"]["optimizer"]["param_groups"][0]["lr"] == 1e-3
+    lower = apply_overrides(config, ["steps=256", "algorithm.lr=1e-4"])
+    train(lower, tmp_path, resume=True, progress=False)
+    resumed = load_checkpoint(tmp_path / "checkpoint.pt")
+    assert resumed["step"] == 256
+    assert resumed["state"]["optimizer"]["param_groups"][0]["lr"] == pytest.approx(1e-4)
+    assert resumed["config"]["algorithm"]["lr"] == pytest.approx(1e-4)
+    wider = apply_overrides(lower, ["steps=384", "algorithm.hidden=[32,32]"])
+    with pytest.raises(CheckpointError, match="config 'algorithm' differs.*may change only lr, resume_refill"):
+        train(wider, tmp_path, resume=True, progress=False)
+
+
 def test_resumed_off_policy_run_refills_its_buffer_before_updating(tmp_path):
     """The replay buffer is not checkpointed: a resumed run must not take gradient steps on a handful of
     fresh transitions (that overfits the critics); it waits for `resume_refill` of them."""
