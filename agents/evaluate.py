@@ -61,6 +61,9 @@ def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None
 
     agent, payload = load_agent(checkpoint)
     config = payload["config"]
+    # as in training: one thread (OpenMP threads spin-waiting beside other busy processes stalled episodes
+    # for 45 s on the 2-core machine)
+    torch.set_num_threads(int(config.get("torch_threads", 1)))
     task = task or config["task"]
     domain, name = split_task(task)
     kwargs = {**config.get("task_kwargs", {}), **(task_kwargs or {})}
