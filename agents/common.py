@@ -40,18 +40,25 @@ def load_config(name_or_path: str | Path) -> dict[str, Any]:
     text = path.read_text()
     if path.suffix == ".json":
         return json.loads(text)
+    return parse_yaml(text)
+
+
+def parse_yaml(text: str) -> Any:
+    """yaml.safe_load, except that 1e-4 is a float (YAML 1.1 reads it as a string; Adam then fails on it)."""
     import yaml
 
-    return yaml.safe_load(text)
+    class Loader(yaml.SafeLoader):
+        pass
+
+    Loader.add_implicit_resolver("tag:yaml.org,2002:float", SCIENTIFIC, list("-+0123456789."))
+    return yaml.load(text, Loader=Loader)  # a SafeLoader subclass: safe
 
 
-SCIENTIFIC = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
+SCIENTIFIC = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")
 
 
 def apply_overrides(config: dict, pairs: list[str]) -> dict:
     """`a.b=value` pairs (value parsed as YAML: numbers, booleans, lists) applied to a copy of `config`."""
-    import yaml
-
     config = copy.deepcopy(config)
     for pair in pairs:
         if "=" not in pair:
@@ -61,10 +68,7 @@ def apply_overrides(config: dict, pairs: list[str]) -> dict:
         *parents, leaf = key.split(".")
         for part in parents:
             node = node.setdefault(part, {})
-        parsed = yaml.safe_load(value)
-        if isinstance(parsed, str) and SCIENTIFIC.fullmatch(parsed.strip()):
-            parsed = float(parsed)  # YAML 1.1 reads 1e-4 as a string
-        node[leaf] = parsed
+        node[leaf] = parse_yaml(value)
     return config
 
 

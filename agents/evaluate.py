@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.common import CheckpointError, load_checkpoint, split_task
+from agents.common import CheckpointError, load_checkpoint, parse_yaml, split_task
 from agents.train import agent_class
 from mjdrive.envs import make_env
 
@@ -172,14 +172,12 @@ def eval_command(args) -> int:
     """`mjdrive eval` (argument parsing lives in mjdrive/cli.py): prints markdown, writes OUT.md/OUT.json."""
     import json
 
-    import yaml
-
     task_kwargs = {}
     for pair in args.task_kwarg:
         if "=" not in pair:
             raise ValueError(f"--task-kwarg expects KEY=VALUE, got {pair!r}")
         key, value = pair.split("=", 1)
-        task_kwargs[key] = yaml.safe_load(value)
+        task_kwargs[key] = parse_yaml(value)
     record_dir = None
     if args.record:
         name = Path(args.out).name if args.out else Path(args.checkpoint).stem
