@@ -30,12 +30,15 @@ DEMONSTRATORS = ("autopilot", "pure_pursuit")  # the scripted drivers of mjdrive
 
 
 def run_off_policy(agent: Any, env: BatchedEnv, run: Run, buffer: ReplayBuffer, hp: dict, seed: int,
-                   demonstrations: ReplayBuffer | None = None, demo_fraction: float = 0.0) -> None:
+                   demonstrations: ReplayBuffer | None = None, demo_fraction: float = 0.0,
+                   experience: int = 0) -> None:
     """Train `agent` until `run.total_steps` env steps; `hp`: learning_starts, batch_size, updates_per_step,
     reward_scale, log_every, resume_refill. With `demonstrations`, `demo_fraction` of each batch comes from them.
+    `experience`: env steps the agent's networks were trained for in another run (`init_from`); exploration
+    (random actions before `learning_starts`, DQN's epsilon) goes on from there.
 
-    A resumed run starts with an empty replay buffer (checkpoints do not keep it): it collects
-    `resume_refill` transitions with the resumed policy before updating again, since gradient steps on a
+    A resumed or initialized run starts with an empty replay buffer (checkpoints do not keep it): it collects
+    `resume_refill` transitions with the loaded policy before updating again, since gradient steps on a
     few hundred fresh transitions overfit the critics and undo the learned policy."""
     obs, _ = env.reset(seed=seed + run.step)  # a resumed run does not replay its first episodes
     learning_starts = int(hp.get("learning_starts", 1000))
@@ -45,18 +48,18 @@ def run_off_policy(agent: Any, env: BatchedEnv, run: Run, buffer: ReplayBuffer, 
     batch_size = int(hp["batch_size"])
     demo_batch = round(batch_size * demo_fraction) if demonstrations is not None and demonstrations.size else 0
     min_buffer = batch_size  # transitions in the buffer before updates
-    if run.step > 0:
+    if run.step > 0 or experience > 0:
         min_buffer = max(min_buffer, min(int(hp.get("resume_refill", 10_000)), buffer.capacity))
     start_step, start_time, debt, next_log = run.step, time.perf_counter(), 0.0, run.step + log_every
     losses: dict[str, list[float]] = {}
     while not run.done:
-        stored, command = agent.explore(obs, run.step)
+        stored, command = agent.explore(obs, run.step + experience)
         next_obs, reward, terminated, _, info = env.step(command)
         # the true next observation of an ended episode is its final one, not the auto-reset one
         buffer.add(obs, stored, reward * reward_scale, info["final_observation"], terminated)
         obs = next_obs
         run.add_steps(env.num_envs, info["final_info"])
-        if run.step >= learning_starts and buffer.size >= min_buffer:
+        if run.step + experience >= learning_starts and buffer.size >= min_buffer:
             debt += updates_per_step * env.num_envs
             while debt >= 1.0:
                 batch = buffer.sample(batch_size - demo_batch)
@@ -71,10 +74,10 @@ def run_off_policy(agent: Any, env: BatchedEnv, run: Run, buffer: ReplayBuffer, 
             losses.clear()
             next_log += log_every
         if run.checkpoint_due():
-            run.save(agent.algo, agent.state_dict())
+            run.save(agent.algo, agent.state_dict(), {"experience": experience})
     if losses:
         run.scalars({name: float(np.mean(values)) for name, values in losses.items()})
-    run.save(agent.algo, agent.state_dict(), periodic=False)
+    run.save(agent.algo, agent.state_dict(), {"experience": experience}, periodic=False)
 
 
 def concat_batches(first: dict, second: dict) -> dict:

@@ -32,18 +32,35 @@ RESUME_KEYS = ("algo", "task", "task_kwargs", "actions", "num_envs", "algorithm"
 RESUME_TUNABLE = {"sac": ("actor_lr", "critic_lr", "resume_refill"), "dqn": ("lr", "resume_refill")}
 
 
-def check_resumable(saved: dict, config: dict) -> None:
-    """Raise CheckpointError unless `config` may continue the run saved with config `saved`."""
+def check_resumable(saved: dict, config: dict, keys: tuple[str, ...] = RESUME_KEYS, action: str = "resume") -> None:
+    """Raise CheckpointError unless `config` may continue the run saved with config `saved` (`keys` must match,
+    the algorithm's RESUME_TUNABLE keys aside)."""
     tunable = RESUME_TUNABLE.get(config.get("algo"), ())
-    for key in RESUME_KEYS:
+    for key in keys:
         old, new = saved.get(key), config.get(key)
         if key == "algorithm" and isinstance(old, dict) and isinstance(new, dict):
             old = {k: v for k, v in old.items() if k not in tunable}
             new = {k: v for k, v in new.items() if k not in tunable}
         if old != new:
-            hint = f" (a resume may change only {', '.join(tunable)})" if key == "algorithm" and tunable else ""
-            raise CheckpointError(f"cannot resume: config '{key}' differs from the checkpoint's "
+            hint = f" (it may change only {', '.join(tunable)})" if key == "algorithm" and tunable else ""
+            raise CheckpointError(f"cannot {action}: config '{key}' differs from the checkpoint's "
                                   f"({saved.get(key)!r} vs {config.get(key)!r}){hint}")
+
+
+def load_initial_state(path: str | Path, config: dict) -> tuple[dict, int]:
+    """(learner state, its env steps of experience) of checkpoint `path` for a new run `config` to start from
+    (`init_from`): the same learner, actions and algorithm settings (learning rates aside); the task and its
+    observation may differ."""
+    algo = config.get("algo")
+    if algo not in RESUME_TUNABLE:
+        raise CheckpointError(f"init_from: only {', '.join(RESUME_TUNABLE)} runs can start from another run's "
+                              f"networks, not {algo!r}")
+    payload = load_checkpoint(path, algo)
+    if payload["extra"].get("inference_only"):
+        raise CheckpointError(f"init_from: {path} holds only the acting network (a policy.pt); start from a full "
+                              "checkpoint (a run's checkpoint.pt or checkpoints/step_N.pt)")
+    check_resumable(payload["config"], config, ("algo", "actions", "algorithm"), f"start from {path}")
+    return payload["state"], int(payload["step"]) + int(payload["extra"].get("experience", 0))
 
 
 def agent_class(algo: str):
@@ -73,6 +90,8 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
     `resume=True` continues from out/checkpoint.pt (networks, optimizers, step and episode counters;
     an off-policy replay buffer is not saved and refills from the resumed policy). SAC and DQN may resume
     with other learning rates (RESUME_TUNABLE), e.g. to fine-tune a checkpoint at a lower one.
+    `config["init_from"]` (SAC/DQN, a new run): start from that checkpoint's networks and optimizer state
+    on another task or observation (e.g. another camera); counters and the replay buffer start empty.
     """
     config = copy.deepcopy(config)
     algo = config.get("algo")
@@ -81,13 +100,16 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
     torch.set_num_threads(int(config.get("torch_threads", 1)))
     seed = int(config.get("seed", 0))
     set_seed(seed)
-    start_step, start_episode, state = 0, 0, None
+    start_step, start_episode, state, experience = 0, 0, None, 0
     if resume:
         payload = load_checkpoint(out / "checkpoint.pt", algo)
         check_resumable(payload["config"], config)
         start_step, state = payload["step"], payload["state"]
         start_episode = payload["extra"].get("episode", 0)
+        experience = payload["extra"].get("experience", 0)  # of the networks a run started from (init_from)
         set_seed(seed + start_step)
+    elif config.get("init_from"):
+        state, experience = load_initial_state(config["init_from"], config)
     run = Run(out, config, total_steps=int(config["steps"]), start_step=start_step,
               start_episode=start_episode, progress=progress, tensorboard=config.get("tensorboard", True))
     try:
@@ -120,7 +142,7 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
                 counts = collect_demonstrations(config, demonstrations, settings, seed, progress)
                 (out / "demonstrations.json").write_text(json.dumps({**settings, **counts}, indent=1))
                 fraction = float(settings["fraction"])
-            run_off_policy(agent, env, run, buffer, hp, seed, demonstrations, fraction)
+            run_off_policy(agent, env, run, buffer, hp, seed, demonstrations, fraction, experience)
             env.close()
     finally:
         run.close()

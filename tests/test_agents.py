@@ -155,6 +155,36 @@ def test_resumed_off_policy_run_refills_its_buffer_before_updating(tmp_path):
     assert resumed - updates == pytest.approx(0.5 * 32, abs=2)  # updates_per_step x transitions past it
 
 
+def test_a_new_run_can_start_from_another_runs_networks_on_another_camera(tmp_path):
+    """`init_from`: a camera agent fine-tuned onto the wide camera keeps its networks and updates counter,
+    refills its empty buffer with the loaded policy first, and refuses other learners or network shapes."""
+    source = _config("sac", ["steps=128", "task=roundabout/d120", "actions=pedal", *OFF_POLICY, *CAMERA,
+                             "task_kwargs.camera_ego=true", f"algorithm.cnn={SMALL_CNN}"])
+    train(source, tmp_path / "source", progress=False)
+    saved = load_checkpoint(tmp_path / "source" / "checkpoint.pt")
+    assert saved["state"]["updates"] > 0
+    wide = apply_overrides(source, ["steps=128", "checkpoint_every=32", "task_kwargs.camera=front_wide",
+                                    "algorithm.actor_lr=1e-4", "algorithm.resume_refill=96",
+                                    f"init_from={tmp_path / 'source' / 'checkpoint.pt'}"])
+    train(wide, tmp_path / "wide", progress=False)
+    started = load_checkpoint(tmp_path / "wide" / "checkpoints" / "step_64.pt")  # 64 transitions < 96
+    assert started["state"]["updates"] == saved["state"]["updates"]  # no update yet
+    for name, value in saved["state"]["actor"].items():
+        torch.testing.assert_close(started["state"]["actor"][name], value)
+    assert started["state"]["actor_optimizer"]["param_groups"][0]["lr"] == pytest.approx(1e-4)
+    final = load_checkpoint(tmp_path / "wide" / "checkpoint.pt")
+    assert final["step"] == 128 and final["extra"]["experience"] == saved["step"]  # its own steps + the source's
+    assert final["state"]["updates"] - saved["state"]["updates"] == pytest.approx(0.5 * 32, abs=2)
+    with pytest.raises(CheckpointError, match="holds only the acting network"):
+        train({**wide, "init_from": str(tmp_path / "source" / "policy.pt")}, tmp_path / "x", progress=False)
+    wider = apply_overrides(wide, ["algorithm.hidden=[32,32]"])
+    with pytest.raises(CheckpointError, match="cannot start from .*config 'algorithm' differs"):
+        train(wider, tmp_path / "y", progress=False)
+    with pytest.raises(CheckpointError, match="only sac, dqn runs can start"):
+        train({**_config("ppo", ["steps=64"]), "init_from": str(tmp_path / "source" / "checkpoint.pt")},
+              tmp_path / "z", progress=False)
+
+
 def test_evaluate_reports_route_completion(tmp_path):
     config = _config("sac", ["steps=64", "algorithm.learning_starts=1000"])
     policy = train(config, tmp_path, progress=False)

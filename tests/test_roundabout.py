@@ -69,6 +69,37 @@ def test_camera_observation_can_carry_the_ego_state():
     assert ego[0] > 1.0 and abs(ego[3]) > 0.0  # [m/s] moving; off the centre line after steering
 
 
+def test_wide_camera_sees_a_road_user_beside_the_front_corner():
+    """`camera="front_wide"` (120 deg) keeps in view a car alongside whose front end is 1.3 m ahead of the
+    camera and whose side is 1.7 m right of it (beyond 45 deg), which the 90 deg front camera (the study's)
+    misses; unknown cameras list the ego's."""
+    changed = {}
+    for camera in ("front", "front_wide"):
+        env = suite.load("roundabout", "d120", {"random": 3, "observation": "camera", "camera": camera})
+        env.reset()
+        task, physics = env.task, env.physics
+        mocap = task.traffic.mocap_ids
+        data = physics.data
+        data.mocap_pos[mocap] = [0.0, 0.0, -50.0]  # every road user out of sight
+        physics.forward()
+        empty = task.render_camera(physics, task.camera, 84, 84).astype(int)
+        yaw = task.yaw
+        ahead, right = np.array([np.cos(yaw), np.sin(yaw)]), np.array([np.sin(yaw), -np.cos(yaw)])
+        car = task.traffic.kinds.index("car")
+        half_length, half_width, half_height = task.traffic.half_size[car]  # [m]
+        camera_x = physics.model.cam_pos[physics.model.camera(task.camera).id, 0]  # [m] ahead of the ego centre
+        forward = camera_x + 1.3 - half_length  # [m] the car's centre ahead of the ego's
+        data.mocap_pos[mocap[car], :2] = task.xy + forward * ahead + (1.7 + half_width) * right
+        data.mocap_pos[mocap[car], 2] = half_height
+        data.mocap_quat[mocap[car]] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
+        physics.forward()
+        image = task.render_camera(physics, task.camera, 84, 84).astype(int)
+        changed[camera] = int((np.abs(image - empty).sum(axis=-1) > 30).sum())  # [px] showing the car
+    assert changed["front"] < 0.25 * changed["front_wide"] and changed["front_wide"] > 150
+    with pytest.raises(ValueError, match="camera must be one of the ego's cameras .*front_wide"):
+        suite.load("roundabout", "d120", {"observation": "camera", "camera": "rear"})
+
+
 def test_features_observation_lists_the_nearest_road_users(env210):
     timestep = env210.reset()
     obs = timestep.observation

@@ -40,7 +40,9 @@ the study's world frame. `camera_ego=True` adds the features' ego vector to the 
 study's camera agent sees only frames and the destination). Leaving the road costs only 0.05 per step
 under eq. 12, and a learner may find that a shortcut across the verge (CARLA's kerbs and street furniture
 would stop it): `off_road_ends=True` ends the episode (terminated, not a success) once the whole footprint
-is off the road.
+is off the road. `camera="front_wide"` renders the "camera" observation from the same eye with a 120 deg
+field of view instead of the front camera's 90 deg (a road user stopping just ahead of a front corner stays
+in the image; not in the study).
 """
 
 from __future__ import annotations
@@ -130,6 +132,7 @@ class RoundaboutTask(DrivingTask):
         destination_frame: str = "world",  # "world" (§4.2) or "ego": the destination vector in the car's frame
         camera_ego: bool = False,  # "camera" observation: add the features' ego vector (not in the study)
         off_road_ends: bool = False,  # end the episode once the whole footprint is off the road (not in the study)
+        camera: str = "front",  # the ego camera of the "camera" observation: "front" (90 deg) or "front_wide"
         traffic_config: TrafficConfig | None = None,
         random=None,
     ):
@@ -160,6 +163,11 @@ class RoundaboutTask(DrivingTask):
         self.destination_frame = destination_frame
         self.camera_ego = bool(camera_ego)
         self.off_road_ends = bool(off_road_ends)
+        ego_cameras = [model.camera(i).name.removeprefix("ego/") for i in range(model.ncam)
+                       if model.camera(i).name.startswith("ego/")]
+        if camera not in ego_cameras:
+            raise ValueError(f"camera must be one of the ego's cameras {ego_cameras}, got {camera!r}")
+        self.camera = f"ego/{camera}"
         self.traffic = Traffic(road_map, kinds, traffic_config)
         self.traffic.bind(model)
         self._kind_onehot = np.eye(len(KIND_NAMES), dtype=np.float32)[self.traffic.kind_id]
@@ -334,7 +342,7 @@ class RoundaboutTask(DrivingTask):
         destination = self.destination_vector()
         if self.observation == "camera":
             size = self.image_size
-            rgb = self.render_camera(physics, "ego/front", size, size)
+            rgb = self.render_camera(physics, self.camera, size, size)
             gray = (rgb @ np.array([0.299, 0.587, 0.114])).astype(np.uint8)
             if self._frames is None:
                 self._frames = collections.deque([gray] * self.frames, maxlen=self.frames)
