@@ -307,3 +307,32 @@ def test_add_vehicle_names_and_errors():
         Vehicle(model, "c/")
     with pytest.raises(ValueError, match="not a suv"):
         Vehicle(model, "a/", "suv")
+
+
+BOUNCE_XML = """<mujoco><option timestep="0.002" gravity="0 0 0"/><worldbody>
+  <geom name="ground" type="plane" size="20 20 0.1" contype="0" conaffinity="0"/>
+  <geom name="wall" type="box" pos="1 0 0.5" size="0.1 1 0.5"/>
+  <body name="ego/chassis" pos="0.4 0 0.5"><freejoint/><geom type="box" size="0.3 0.3 0.3" mass="1500"/></body>
+</worldbody></mujoco>"""
+
+
+def test_collision_sensor_catches_a_bump_that_bounces_off_within_a_control_step():
+    """A 1500 kg box hits a wall at 3 m/s and bounces back: with MuJoCo's default contact (solref 0.02) it
+    touches for ~0.08 s, so a check at the end of a 0.2 s control step misses it; sampling every 0.02 s
+    (the tasks' physics chunks) does not."""
+    from mjdrive.sensors import CollisionSensor
+
+    model = mujoco.MjModel.from_xml_string(BOUNCE_XML)
+    data = mujoco.MjData(model)
+    data.qvel[0] = 3.0  # [m/s] towards the wall, 0.2 m away
+    sensor = CollisionSensor(model)
+    touching = []
+    for step in range(100):  # one 0.2 s control step
+        mujoco.mj_step(model, data)
+        touching.append(sensor(data))
+        if step % 10 == 9:
+            sensor.sample(data)
+    assert data.qvel[0] < -0.1 and not touching[-1]  # bounced off: no contact at the end
+    assert 0.02 < 0.002 * sum(touching) < 0.2  # [s] in contact
+    assert sensor.collided(data) and not sensor.collided(data)  # reported once, then cleared
+    assert model.geom(sensor.last_other_geom).name == "wall"

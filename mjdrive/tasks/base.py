@@ -113,8 +113,15 @@ class DrivingTask(control.Task):
         return footprint(x, y, yaw, self.params.length, self.params.width)
 
     def reset_safety_sensors(self, physics: Physics) -> None:
+        """Reset the sensors and sample contacts between physics chunks (`substep`) from now on."""
         self.lane_invasion_sensor.reset(self.ego_corners(physics))
-        self.collision_sensor.last_other_geom = -1
+        self.collision_sensor.reset()
+        physics.substep_callback = self.substep
+
+    def substep(self, physics: Physics, dt: float) -> None:
+        """Physics.substep_callback (every `substep_interval` physics steps): sample the ego's contacts.
+        Tasks that move things between chunks (traffic) extend it."""
+        self.collision_sensor.sample(physics.raw_data)
 
     def road_users(self) -> RoadUsers:
         """Every other road user now (for logs and viewers); none in a task without traffic."""

@@ -196,7 +196,6 @@ class RoundaboutTask(DrivingTask):
         self.vehicle.reset(physics.raw_data, x, y, float(self.route_lane.heading(start_s)))
         self.route_frame(np.array([[x, y]]), full=True)
         self._frame_time = -1.0
-        physics.substep_callback = self._substep
         physics.substep_interval = max(1, int(round(self.traffic.config.substep / physics.timestep())))
         self._ego_fn = functools.partial(self.ego_state, physics)
         rng = np.random.default_rng(self.random.randint(2**31))
@@ -215,8 +214,9 @@ class RoundaboutTask(DrivingTask):
         self._step_reward = 0.0
         self.reward_terms = {}
 
-    def _substep(self, physics: Physics, dt: float) -> None:
-        """Physics.substep_callback: move the traffic and write its mocap poses."""
+    def substep(self, physics: Physics, dt: float) -> None:
+        """Physics.substep_callback: sample the ego's contacts, then move the traffic (its mocap poses)."""
+        super().substep(physics, dt)
         self.traffic.advance(dt, self._ego_fn, physics.raw_data)
 
     def ego_state(self, physics: Physics) -> EgoState:
@@ -258,7 +258,7 @@ class RoundaboutTask(DrivingTask):
         previous_xy = self.xy
         self._update_ego(physics)
         info = self.info
-        collision = self.collision_sensor(physics.raw_data)
+        collision = self.collision_sensor.collided(physics.raw_data)
         in_route = np.abs(self.corner_offsets) <= self._route_width / 2  # on the route's lanes: on the road
         on_road = in_route if in_route.all() else self.road_map.on_road(self.corners)
         off_share = 1.0 - np.count_nonzero(on_road) / 4.0

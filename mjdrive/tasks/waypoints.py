@@ -116,7 +116,7 @@ class WaypointTask(DrivingTask):
         self._update_lane_frame(physics)
         info = self.info
         waypoint_reached = self.tracker.update(self.xy)
-        collision = self.collision_sensor(physics.raw_data)
+        collision = self.collision_sensor.collided(physics.raw_data)
         invasion = self.lane_invasion_sensor(self.ego_corners(physics), self._inside_route_lane())
         # Within its own lane the car is on the road; only a car outside it needs the map-wide query.
         in_lane = abs(self.lane_offset) <= 0.5 * self.route_lane.width

@@ -1,0 +1,113 @@
+"""Where an agent's collisions happen: re-run its collision episodes (deterministic) and describe each contact.
+
+For every collision episode in an `mjdrive eval` JSON (or the given --seeds), the episode is replayed with the
+greedy policy and, at the contact, the road user hit is reported: its kind, its centre in the ego frame
+(x ahead, y left) [m], its bearing from the ego camera's axis and its heading relative to the ego's [deg], and
+both speeds 0.2 s (the step before the contact, which stops the ego against a mocap road user) and 1 s
+before [m/s]:
+
+    python tools/collision_report.py results/checkpoints/sac_camera_state_demos_ft_roundabout_122k.pt \\
+        --eval runs/eval/ft_fail_d160.json
+
+Writes a markdown table to stdout (and OUT.md with --out).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from agents.common import split_task  # noqa: E402
+from agents.evaluate import load_agent  # noqa: E402
+from mjdrive.envs import make_env  # noqa: E402
+from mjdrive.sensors import wrap_angle  # noqa: E402
+
+HISTORY = 5  # [steps] 1 s at 5 Hz
+
+
+def describe_collision(agent, env, seed: int) -> dict | None:
+    """Replay episode `seed` with `agent`; the contact's description, or None if it does not collide."""
+    obs, _ = env.reset(seed=seed)
+    dm = env.unwrapped.dm_env
+    task, physics = dm.task, dm.physics
+    model = physics.model
+    camera = model.camera(getattr(task, "camera", "ego/front")).id
+    camera_x = float(model.cam_pos[camera, 0])  # [m] ahead of the ego centre
+    poses, speeds, ego = [], [], []  # per step: road users (M, 3) x, y, yaw and (M,) [m/s]; ego (x, y, yaw, speed)
+    while True:
+        obs, _, terminated, truncated, info = env.step(agent.act({k: v[None] for k, v in obs.items()})[0])
+        poses.append(task.traffic.poses().copy())
+        speeds.append(np.hypot(*task.traffic.velocities().T))
+        ego.append((*task.xy, task.yaw, task.speed))
+        if terminated or truncated:
+            break
+    if not info.get("collision"):
+        return None
+    geom = task.collision_sensor.last_other_geom
+    body = model.body(int(model.geom_bodyid[geom])).name
+    row = {"seed": seed, "step": len(ego), "hit": model.geom(geom).name, "kind": "static"}
+    if body.startswith("traffic_"):
+        slot = int(body.removeprefix("traffic_"))
+        x, y, yaw, speed = ego[-1]
+        dx, dy = poses[-1][slot, :2] - (x, y)
+        c, s = np.cos(yaw), np.sin(yaw)
+        ahead, left = c * dx + s * dy, -s * dx + c * dy  # [m] in the ego frame
+        previous, before = max(len(ego) - 2, 0), max(len(ego) - 1 - HISTORY, 0)  # 0.2 s and 1 s before
+        row.update(kind=task.traffic.kinds[slot], ahead_m=round(float(ahead), 2), left_m=round(float(left), 2),
+                   bearing_deg=round(float(np.degrees(np.arctan2(left, ahead - camera_x))), 1),
+                   relative_yaw_deg=round(float(np.degrees(wrap_angle(poses[-1][slot, 2] - yaw))), 1),
+                   ego_speed=round(float(ego[previous][3]), 2), ego_speed_1s=round(float(ego[before][3]), 2),
+                   other_speed=round(float(speeds[previous][slot]), 2),
+                   other_speed_1s=round(float(speeds[before][slot]), 2))
+    return row
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("checkpoint", type=Path)
+    parser.add_argument("--eval", type=Path, default=None, help="an `mjdrive eval` JSON: its collision episodes")
+    parser.add_argument("--seeds", type=int, nargs="*", default=[], help="episode seeds to replay")
+    parser.add_argument("--task", default=None, help="DOMAIN/TASK (default: the eval JSON's, else the run's)")
+    parser.add_argument("--out", type=Path, default=None, help="also write OUT.md")
+    args = parser.parse_args(argv)
+
+    agent, payload = load_agent(args.checkpoint)
+    config = payload["config"]
+    seeds, task = list(args.seeds), args.task
+    if args.eval:
+        result = json.loads(args.eval.read_text())
+        seeds += [row["seed"] for row in result["rows"] if row["collision"]]
+        task = task or result["task"]
+    if not seeds:
+        parser.error("no episodes: give --eval with collisions or --seeds")
+    domain, name = split_task(task or config["task"])
+    env = make_env(domain, name, actions=config.get("actions", "continuous"), **config.get("task_kwargs", {}))
+    columns = ["seed", "step", "kind", "ahead_m", "left_m", "bearing_deg", "relative_yaw_deg", "ego_speed",
+               "ego_speed_1s", "other_speed", "other_speed_1s", "hit"]
+    lines = [f"# Collisions of {args.checkpoint} on {domain}/{name}", "",
+             "Road user's centre in the ego frame (x ahead, y left) [m]; bearing from the ego camera's axis "
+             "(left +) and heading relative to the ego's [deg]; speeds [m/s] 0.2 s and 1 s before the contact.", "",
+             "| " + " | ".join(columns) + " |", "|" + " ---: |" * len(columns)]
+    for seed in seeds:
+        row = describe_collision(agent, env, seed)
+        if row is None:
+            lines.append(f"| {seed} | no collision on replay |" + " |" * (len(columns) - 2))
+            continue
+        lines.append("| " + " | ".join(str(row.get(c, "")) for c in columns) + " |")
+    env.close()
+    report = "\n".join(lines)
+    print(report)
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.with_suffix(".md").write_text(report + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
