@@ -15,9 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from mjdrive import suite
-from mjdrive.control.autopilot import Autopilot
-from mjdrive.tasks.roundabout import DENSITIES
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from mjdrive import suite  # noqa: E402
+from mjdrive.control.autopilot import Autopilot  # noqa: E402
+from mjdrive.tasks.roundabout import DENSITIES  # noqa: E402
 
 COLUMNS = ("episode_reward", "elapsed_time", "average_speed", "distance", "steps")
 
