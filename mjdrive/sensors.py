@@ -37,9 +37,9 @@ class CollisionSensor:
     def __init__(self, model: mujoco.MjModel, prefix: str = "ego/", ground: str = "ground"):
         root = model.body(prefix + "chassis").id
         ego_body = model.body_rootid == root
-        self.is_ego_geom = ego_body[model.geom_bodyid]
-        self.is_other = ~self.is_ego_geom
-        self.is_other[model.geom(ground).id] = False
+        # per geom: 1 the ego's, 2 anything else it can hit, 0 the ground; a pair collides iff its product is 2
+        self.code = np.where(ego_body[model.geom_bodyid], 1, 2).astype(np.int8)
+        self.code[model.geom(ground).id] = 0
         self.last_other_geom = -1  # geom id the ego touched last, for logs
         self.pending = False  # a contact was sampled since the last `collided`
 
@@ -47,12 +47,13 @@ class CollisionSensor:
         """Whether the ego touches another geom now."""
         if data.ncon == 0:
             return False
-        g1, g2 = data.contact.geom1, data.contact.geom2
-        hit = (self.is_ego_geom[g1] & self.is_other[g2]) | (self.is_ego_geom[g2] & self.is_other[g1])
+        pairs = data.contact.geom  # (ncon, 2)
+        codes = self.code[pairs]
+        hit = codes[:, 0] * codes[:, 1] == 2
         if not hit.any():
             return False
         k = int(np.argmax(hit))
-        self.last_other_geom = int(g2[k] if self.is_ego_geom[g1[k]] else g1[k])
+        self.last_other_geom = int(pairs[k, 1] if codes[k, 0] == 1 else pairs[k, 0])
         return True
 
     def sample(self, data: mujoco.MjData) -> None:
