@@ -63,7 +63,7 @@ class CollisionSensor:
 
     def collided(self, data: mujoco.MjData) -> bool:
         """Whether the ego touched another geom at a sample since the last call, or touches one now."""
-        hit = self(data) or self.pending
+        hit = self.pending or self(data)
         self.pending = False
         return hit
 
