@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from agents.common import ObsBatch, ReplayBuffer, Run, bounded_action_map, split_task
+from agents.common import ObsBatch, ReplayBuffer, Run, bounded_action_map, training_tasks
 from mjdrive.envs.batched import BatchedEnv
 
 DEMONSTRATION_DEFAULTS = {
@@ -121,9 +121,10 @@ def collect_demonstrations(config: dict, buffer: ReplayBuffer, settings: dict, s
     from mjdrive.policies import make_policy
 
     actions = config.get("actions", "continuous")
-    domain, name = split_task(config["task"])
-    env = make_env(domain, name, actions=actions, **config.get("task_kwargs", {}))
-    policy = make_policy(settings["policy"], env, seed)
+    domain, names = training_tasks(config)  # episodes go through `task` and `mix_tasks` in turn
+    envs = [make_env(domain, name, actions=actions, **config.get("task_kwargs", {})) for name in names]
+    policies = [make_policy(settings["policy"], each, seed + k) for k, each in enumerate(envs)]
+    env, policy = envs[0], policies[0]
     space = env.action_space
     scale, bias = (t.numpy() for t in bounded_action_map(space))
     reward_scale = float(config.get("reward_scale", 1.0))
@@ -147,8 +148,10 @@ def collect_demonstrations(config: dict, buffer: ReplayBuffer, settings: dict, s
                 counts["episodes"] += 1
                 counts["success"] += bool(info.get("success"))
                 counts["collision"] += bool(info.get("collision"))
+                env, policy = envs[counts["episodes"] % len(envs)], policies[counts["episodes"] % len(envs)]
                 obs, _ = env.reset(seed=seed + 10**9 + counts["episodes"])
     finally:
         bar.close()
-        env.close()
+        for each in envs:
+            each.close()
     return counts

@@ -27,7 +27,7 @@ ALGOS = ("ppo", "sac", "dqn", "trpo")
 # the entries of each learner's state that acting needs (policy.pt keeps only these)
 INFERENCE_KEYS = {"sac": ("actor",), "dqn": ("q",), "ppo": ("actor_state_dict",), "trpo": ("policy",)}
 # config keys that must match to resume a run
-RESUME_KEYS = ("algo", "task", "task_kwargs", "actions", "num_envs", "algorithm", "rsl_rl")
+RESUME_KEYS = ("algo", "task", "mix_tasks", "task_kwargs", "actions", "num_envs", "algorithm", "rsl_rl")
 # algorithm keys a resumed run may change (fine-tuning at a lower learning rate); the rest must match
 RESUME_TUNABLE = {"sac": ("actor_lr", "critic_lr", "resume_refill"), "dqn": ("lr", "resume_refill")}
 

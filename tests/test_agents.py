@@ -362,3 +362,31 @@ def test_bad_demonstration_settings_raise_clear_errors(tmp_path):
         train(_config("sac", [*base, "demonstrations={fraction: 1.0}"]), tmp_path, progress=False)
     with pytest.raises(ValueError, match="unknown policy"):
         train(_config("sac", [*base, "demonstrations={policy: teleport, steps: 10}"]), tmp_path, progress=False)
+
+
+def test_demonstrations_go_through_the_mixed_tasks_in_turn(monkeypatch):
+    """With `mix_tasks`, the scripted driver's episodes cycle over `task` and `mix_tasks` like the copies do."""
+    import mjdrive.envs
+    from agents import off_policy
+    from agents.common import ReplayBuffer
+    from mjdrive.envs.batched import ObservationLayout
+
+    make = mjdrive.envs.make_env
+    resets: list[str] = []
+
+    def recording_make_env(domain, name, **kwargs):
+        env = make(domain, name, **kwargs)
+        reset = env.reset
+        env.reset = lambda **kw: (resets.append(name), reset(**kw))[1]
+        return env
+
+    monkeypatch.setattr(mjdrive.envs, "make_env", recording_make_env)
+    config = _config("sac", ["task=roundabout/d120", "mix_tasks=[roundabout/d160]", "actions=pedal",
+                             "task_kwargs={observation: features}"])
+    env = make("roundabout", "d120", actions="pedal", observation="features")
+    buffer = ReplayBuffer(200, ObservationLayout(env.observation_space), (2,))
+    env.close()
+    counts = off_policy.collect_demonstrations(config, buffer, {"policy": "autopilot", "steps": 200}, seed=0,
+                                               progress=False)
+    assert counts["episodes"] >= 2 and counts["success"] == counts["episodes"]
+    assert resets[:3] == ["d120", "d160", "d120"][:len(resets)] and len(resets) == counts["episodes"] + 1

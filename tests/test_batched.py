@@ -110,3 +110,27 @@ def test_roundabout_traffic_moves_between_substeps_as_in_the_single_env(backend)
         else:  # the rollout backend does not carry the solver warm start: close, not identical
             assert batched.bases[0].task.road_users().poses.shape == poses.shape
     batched.close()
+
+
+def test_copies_can_run_different_tasks_of_one_domain_each_as_its_single_env():
+    """A batch over the roundabout's densities: copy i runs task[i % 2], bit for bit as its own single env."""
+    from agents.common import make_batched_env
+
+    actions = _actions(15, seed=2)
+    env = make_env("roundabout", "d160", observation="features", off_route=None)
+    env.reset(seed=6)  # copy 1 is reset with seed + 1
+    reference = [env.step(action)[0]["road_users"].copy() for action in actions]
+    batched = make_batched_env({"task": "roundabout/d120", "mix_tasks": ["roundabout/d160"], "num_envs": 4,
+                                "task_kwargs": {"observation": "features", "off_route": None}})
+    assert batched.task_names == ["d120", "d160", "d120", "d160"]
+    batched.reset(seed=5)
+    sizes = [len(base.task.traffic.kind_id) for base in batched.bases]
+    assert sizes[0] == sizes[2] < sizes[1] == sizes[3]  # denser traffic in the d160 copies
+    for action, road_users in zip(actions, reference, strict=True):
+        obs, *_ = batched.step(np.stack([action] * 4))
+        np.testing.assert_array_equal(obs["road_users"][1], road_users)
+    batched.close()
+    with pytest.raises(ValueError, match="rollout backend steps copies of one model"):
+        BatchedEnv("roundabout", ["d120", "d160"], num_envs=2, backend="rollout", observation="features")
+    with pytest.raises(ValueError, match="mix_tasks must be tasks of roundabout"):
+        make_batched_env({"task": "roundabout/d120", "mix_tasks": ["waypoints/straight"]})

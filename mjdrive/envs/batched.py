@@ -5,7 +5,9 @@
     obs, info = env.reset(seed=0)                     # obs: {"waypoint_angles": (8,15), ...}
     obs, reward, terminated, truncated, info = env.step(actions)   # actions (8,3) or (8,) indices
 
-Each copy is a `DrivingGymEnv` (own MjModel/MjData, own task and random stream). A step maps the actions,
+Each copy is a `DrivingGymEnv` (own MjModel/MjData, own task and random stream). `task` may be a list of
+tasks of one domain (e.g. the roundabout's four densities): copy i runs `task[i % len(task)]`; their observation
+and action spaces must match. A step maps the actions,
 runs every task's `before_step`, advances all physics in ONE call (`backend`), then runs every task's
 `after_step`, reward, termination and observation -- the same sequence as `dm_control`'s
 `Environment.step`, so the "threads" and "serial" backends give bit-identical episodes to the single env.
@@ -27,6 +29,7 @@ replay buffer). `terminated` (task ended: collision, lane invasion, arrival, phy
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -55,7 +58,7 @@ class BatchedEnv:
     def __init__(
         self,
         domain: str,
-        task: str,
+        task: str | Sequence[str],
         num_envs: int = 1,
         actions: str = "continuous",
         nthread: int = 1,
@@ -69,16 +72,27 @@ class BatchedEnv:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
-        self.domain, self.task_name, self.actions = domain, task, actions
+        tasks = [task] if isinstance(task, str) else list(task)
+        if not tasks:
+            raise ValueError("task must name at least one task")
+        if backend == "rollout" and len(set(tasks)) > 1:
+            raise ValueError(f"the rollout backend steps copies of one model; got several tasks {tasks} "
+                             "(use backend='threads' or 'serial')")
+        self.task_names = [tasks[i % len(tasks)] for i in range(num_envs)]  # the task of each copy
+        self.domain, self.task_name, self.actions = domain, tasks[0], actions
         self.task_kwargs = dict(task_kwargs)
         self.num_envs, self.nthread, self.backend, self.device = num_envs, max(1, nthread), backend, device
         self.envs: list[gym.Env] = [
-            make_env(domain, task, actions=actions, environment_kwargs=environment_kwargs, **task_kwargs)
-            for _ in range(num_envs)
+            make_env(domain, name, actions=actions, environment_kwargs=environment_kwargs, **task_kwargs)
+            for name in self.task_names
         ]
         self.bases: list[DrivingGymEnv] = [env.unwrapped for env in self.envs]
         self.single_observation_space: gym.spaces.Dict = self.envs[0].observation_space
         self.single_action_space: gym.Space = self.envs[0].action_space
+        for name, env in zip(self.task_names, self.envs, strict=True):
+            if env.observation_space != self.single_observation_space or env.action_space != self.single_action_space:
+                raise ValueError(f"{domain}/{name} has other observation or action spaces than "
+                                 f"{domain}/{tasks[0]}; a batch can mix only tasks whose spaces match")
         self.discrete = isinstance(self.single_action_space, gym.spaces.Discrete)
         self.wrapped_actions = isinstance(self.envs[0], gym.ActionWrapper)  # a table or "pedal"
         dm = self.bases[0].dm_env
@@ -101,8 +115,9 @@ class BatchedEnv:
         # One MCAP file per episode per copy, copy i into record_dir/env_{i:02d}/ (streams never mix).
         self.recorders: list[EpisodeRecorder] | None = None
         if record_dir is not None:
-            spec = EnvSpec(domain, task, self.task_kwargs, environment_kwargs)
-            self.recorders = [EpisodeRecorder(Path(record_dir) / f"env_{i:02d}", spec) for i in range(num_envs)]
+            self.recorders = [EpisodeRecorder(Path(record_dir) / f"env_{i:02d}",
+                                              EnvSpec(domain, name, self.task_kwargs, environment_kwargs))
+                              for i, name in enumerate(self.task_names)]
         self._obs: list[dict[str, np.ndarray]] = []
         self.episode_returns = np.zeros(num_envs)
         self.episode_lengths = np.zeros(num_envs, np.int64)
