@@ -315,6 +315,12 @@ def test_select_checkpoint_ranks_a_runs_checkpoints_and_exports_the_chosen_one(t
     assert "**(chosen)**" in out.with_suffix(".md").read_text()
     tool.main([str(run), "--steps", "256", "--episodes", "1", "--out", str(out)])
     assert [r["step"] for r in json.loads(out.with_suffix(".json").read_text())["checkpoints"]] == [256]
+    tool.main([str(run), "--steps", "256", "--episodes", "1", "--out", str(out),
+               "--task", "waypoints/straight", "waypoints/four_routes"])  # pooled over two tasks
+    (row,) = json.loads(out.with_suffix(".json").read_text())["checkpoints"]
+    assert list(row["per_task"]) == ["waypoints/straight", "waypoints/four_routes"]
+    rewards = [v["avg_reward"] for v in row["per_task"].values()]
+    assert rewards[0] != rewards[1] and row["summary"]["avg_reward"] == pytest.approx(sum(rewards) / 2)
     with pytest.raises(SystemExit):
         tool.main([str(run), "--steps", "300", "--episodes", "1"])
 

@@ -8,7 +8,10 @@ separate seeds (default 20000..., the Table 3 tool uses 10000...) and then teste
         --out results/roundabout/sac_camera_state_selection/summary
 
 Ranks by success %, then fewer collisions, then higher average reward. Writes OUT.md and OUT.json; greedy
-actions; the task (and its kwargs) the run trained on unless --task is given.
+actions; the task (and its kwargs) the run trained on unless --task is given. Several tasks (e.g. the four
+roundabout densities: `--task roundabout/d120 roundabout/d140 roundabout/d160 roundabout/d210`) run
+--episodes each on the same seeds and rank on the pooled figures (the mean of the per-task ones), with each
+task's success % in the table.
 """
 
 from __future__ import annotations
@@ -44,6 +47,12 @@ def rank_key(summary: dict) -> tuple[float, float, float]:
     return (-summary["success_pct"], summary["collision_pct"], -summary["avg_reward"])
 
 
+def pooled(summaries: list[dict]) -> dict:
+    """The mean of each numeric figure over per-task summaries of equally many episodes."""
+    keys = [k for k, v in summaries[0].items() if isinstance(v, int | float) and not isinstance(v, bool)]
+    return {k: sum(s[k] for s in summaries) / len(summaries) for k in keys}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run_dir", type=Path, help="a `mjdrive train` output folder")
@@ -53,7 +62,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="only these env steps (e.g. the best few, again on more seeds)")
     parser.add_argument("--episodes", type=int, default=40)
     parser.add_argument("--seed", type=int, default=20_000, help="first validation seed")
-    parser.add_argument("--task", default=None, help="DOMAIN/TASK (default: the run's)")
+    parser.add_argument("--task", nargs="+", default=None,
+                        help="DOMAIN/TASK, or several to pool (default: the run's)")
     parser.add_argument("--export", type=Path, default=None, help="write the chosen policy (acting network only)")
     parser.add_argument("--out", type=Path, default=None, help="write OUT.md and OUT.json")
     args = parser.parse_args(argv)
@@ -68,11 +78,17 @@ def main(argv: list[str] | None = None) -> int:
                          f"there are {[step for step, _ in checkpoints]}")
         checkpoints = [(step, path) for step, path in checkpoints if step in args.steps]
     for step, path in checkpoints:
-        result = evaluate(path, episodes=args.episodes, task=args.task, seed=args.seed, progress=f"step {step:,}")
-        results.append({"step": step, "checkpoint": str(path), "summary": result["summary"],
-                        "task": result["task"]})
-        s = result["summary"]
-        print(f"step {step:>9,}: success {s['success_pct']:5.1f} %, collision {s['collision_pct']:5.1f} %, "
+        per_task = {}
+        for task in args.task or [None]:
+            result = evaluate(path, episodes=args.episodes, task=task, seed=args.seed,
+                              progress=f"step {step:,}" + (f" {task}" if task else ""))
+            per_task[result["task"]] = result["summary"]
+        s = pooled(list(per_task.values()))
+        results.append({"step": step, "checkpoint": str(path), "summary": s, "task": " + ".join(per_task),
+                        "per_task": per_task})
+        split = " (" + ", ".join(f"{t} {v['success_pct']:.0f}" for t, v in per_task.items()) + ")" \
+            if len(per_task) > 1 else ""
+        print(f"step {step:>9,}: success {s['success_pct']:5.1f} %{split}, collision {s['collision_pct']:5.1f} %, "
               f"avg reward {s['avg_reward']:8.2f}", flush=True)
     best = min(results, key=lambda r: rank_key(r["summary"]))
     if args.export:
@@ -80,14 +96,17 @@ def main(argv: list[str] | None = None) -> int:
 
     command = "python tools/select_checkpoint.py " + shlex.join(sys.argv[1:] if argv is None else argv)
     lines = [f"# Checkpoint selection: {args.run_dir}", "", f"`{command}`", "",
-             f"{args.episodes} greedy episodes per checkpoint on {best['task']}, seeds "
+             f"{args.episodes} greedy episodes per checkpoint and task on {best['task']}, seeds "
              f"{args.seed}...{args.seed + args.episodes - 1}; ranked by success, then collisions, then reward.",
-             "", "| env step | success % | collision % | avg reward | avg time (s) | avg speed (m/s) |",
-             "| ---: | ---: | ---: | ---: | ---: | ---: |"]
+             "", "| env step | success % | collision % | avg reward | avg time (s) | avg speed (m/s) |"
+             + ("" if len(best["per_task"]) == 1 else " success % per task |"),
+             "| ---: | ---: | ---: | ---: | ---: | ---: |" + ("" if len(best["per_task"]) == 1 else " --- |")]
     for r in results:
         s, mark = r["summary"], " **(chosen)**" if r is best else ""
+        split = "" if len(r["per_task"]) == 1 else \
+            " " + " / ".join(f"{v['success_pct']:.0f}" for v in r["per_task"].values()) + " |"
         lines.append(f"| {r['step']:,}{mark} | {s['success_pct']:.1f} | {s['collision_pct']:.1f} | "
-                     f"{s['avg_reward']:.2f} | {s['avg_time_s']:.2f} | {s['avg_speed_m_s']:.2f} |")
+                     f"{s['avg_reward']:.2f} | {s['avg_time_s']:.2f} | {s['avg_speed_m_s']:.2f} |{split}")
     lines += ["", f"Chosen: step {best['step']:,}" + (f", exported to `{args.export}`" if args.export else "") + ".",
               f"Evaluation wall time {time.perf_counter() - start:.0f} s."]
     report = "\n".join(lines)
