@@ -321,6 +321,8 @@ def test_select_checkpoint_ranks_a_runs_checkpoints_and_exports_the_chosen_one(t
     assert list(row["per_task"]) == ["waypoints/straight", "waypoints/four_routes"]
     rewards = [v["avg_reward"] for v in row["per_task"].values()]
     assert rewards[0] != rewards[1] and row["summary"]["avg_reward"] == pytest.approx(sum(rewards) / 2)
+    for task, summary in row["per_task"].items():  # the failed episodes' seeds, kept for replaying them
+        assert len(row["failures"][task]) == round(100 - summary["success_pct"]) // 100
     with pytest.raises(SystemExit):
         tool.main([str(run), "--steps", "300", "--episodes", "1"])
 

@@ -78,14 +78,15 @@ def main(argv: list[str] | None = None) -> int:
                          f"there are {[step for step, _ in checkpoints]}")
         checkpoints = [(step, path) for step, path in checkpoints if step in args.steps]
     for step, path in checkpoints:
-        per_task = {}
+        per_task, failures = {}, {}
         for task in args.task or [None]:
             result = evaluate(path, episodes=args.episodes, task=task, seed=args.seed,
                               progress=f"step {step:,}" + (f" {task}" if task else ""))
             per_task[result["task"]] = result["summary"]
+            failures[result["task"]] = {row["seed"]: row["end"] for row in result["rows"] if not row["success"]}
         s = pooled(list(per_task.values()))
         results.append({"step": step, "checkpoint": str(path), "summary": s, "task": " + ".join(per_task),
-                        "per_task": per_task})
+                        "per_task": per_task, "failures": failures})  # seed: end, for tools/collision_report.py
         split = " (" + ", ".join(f"{t} {v['success_pct']:.0f}" for t, v in per_task.items()) + ")" \
             if len(per_task) > 1 else ""
         print(f"step {step:>9,}: success {s['success_pct']:5.1f} %{split}, collision {s['collision_pct']:5.1f} %, "
