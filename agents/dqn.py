@@ -28,7 +28,7 @@ DEFAULTS = {
     "target_every": 1000,  # [updates] between hard target copies
     "learning_starts": 1000,  # [env steps]
     "updates_per_step": 0.25,  # gradient steps per env transition
-    "resume_refill": 10_000,  # [transitions] a resumed run collects before updating (the buffer is not saved)
+    "resume_refill": 10_000,  # [transitions] a run resumed without its saved buffer collects before updating
     "double": True,  # Double DQN target (van Hasselt 2016); False: the studies' max over the target net
     "loss": "mse",  # "mse" (the studies) or "huber"
     "random_shift": 4,  # [px] DrQ image augmentation in updates (as in agents/sac.py); 0: none

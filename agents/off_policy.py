@@ -27,6 +27,7 @@ DEMONSTRATION_DEFAULTS = {
     "fraction": 0.5,  # of every update batch drawn from the demonstrations (RLPD: 0.5)
 }
 DEMONSTRATORS = ("autopilot", "pure_pursuit")  # the scripted drivers of mjdrive.policies worth imitating
+REPLAY_DIR = "replay"  # in a run folder: the buffer saved when training is interrupted (ReplayBuffer.save)
 
 
 def run_off_policy(agent: Any, env: BatchedEnv, run: Run, buffer: ReplayBuffer, hp: dict, seed: int,
@@ -37,9 +38,11 @@ def run_off_policy(agent: Any, env: BatchedEnv, run: Run, buffer: ReplayBuffer, 
     `experience`: env steps the agent's networks were trained for in another run (`init_from`); exploration
     (random actions before `learning_starts`, DQN's epsilon) goes on from there.
 
-    A resumed or initialized run starts with an empty replay buffer (checkpoints do not keep it): it collects
-    `resume_refill` transitions with the loaded policy before updating again, since gradient steps on a
-    few hundred fresh transitions overfit the critics and undo the learned policy."""
+    A resumed or initialized run whose buffer holds fewer than `resume_refill` transitions (periodic
+    checkpoints do not keep it) collects them with the loaded policy before updating again, since gradient
+    steps on a few hundred fresh transitions overfit the critics and undo the learned policy. Stopped by
+    Ctrl-C or SIGTERM (KeyboardInterrupt), the loop saves checkpoint.pt and the buffer (`run.out/replay/`)
+    at the current step before re-raising, so `--resume` goes on without the refill."""
     obs, _ = env.reset(seed=seed + run.step)  # a resumed run does not replay its first episodes
     learning_starts = int(hp.get("learning_starts", 1000))
     updates_per_step = float(hp.get("updates_per_step", 1.0))  # gradient steps per env transition
@@ -52,29 +55,36 @@ def run_off_policy(agent: Any, env: BatchedEnv, run: Run, buffer: ReplayBuffer, 
         min_buffer = max(min_buffer, min(int(hp.get("resume_refill", 10_000)), buffer.capacity))
     start_step, start_time, debt, next_log = run.step, time.perf_counter(), 0.0, run.step + log_every
     losses: dict[str, list[float]] = {}
-    while not run.done:
-        stored, command = agent.explore(obs, run.step + experience)
-        next_obs, reward, terminated, _, info = env.step(command)
-        # the true next observation of an ended episode is its final one, not the auto-reset one
-        buffer.add(obs, stored, reward * reward_scale, info["final_observation"], terminated)
-        obs = next_obs
-        run.add_steps(env.num_envs, info["final_info"])
-        if run.step + experience >= learning_starts and buffer.size >= min_buffer:
-            debt += updates_per_step * env.num_envs
-            while debt >= 1.0:
-                batch = buffer.sample(batch_size - demo_batch)
-                if demo_batch:
-                    batch = concat_batches(batch, demonstrations.sample(demo_batch))
-                for name, value in agent.update(batch).items():
-                    losses.setdefault(name, []).append(value)
-                debt -= 1.0
-        if run.step >= next_log:
-            run.scalars({name: float(np.mean(values)) for name, values in losses.items()})
-            run.scalar("perf/steps_per_s", (run.step - start_step) / (time.perf_counter() - start_time))
-            losses.clear()
-            next_log += log_every
-        if run.checkpoint_due():
-            run.save(agent.algo, agent.state_dict(), {"experience": experience})
+    try:
+        while not run.done:
+            stored, command = agent.explore(obs, run.step + experience)
+            next_obs, reward, terminated, _, info = env.step(command)
+            # the true next observation of an ended episode is its final one, not the auto-reset one
+            buffer.add(obs, stored, reward * reward_scale, info["final_observation"], terminated)
+            obs = next_obs
+            run.add_steps(env.num_envs, info["final_info"])
+            if run.step + experience >= learning_starts and buffer.size >= min_buffer:
+                debt += updates_per_step * env.num_envs
+                while debt >= 1.0:
+                    batch = buffer.sample(batch_size - demo_batch)
+                    if demo_batch:
+                        batch = concat_batches(batch, demonstrations.sample(demo_batch))
+                    for name, value in agent.update(batch).items():
+                        losses.setdefault(name, []).append(value)
+                    debt -= 1.0
+            if run.step >= next_log:
+                run.scalars({name: float(np.mean(values)) for name, values in losses.items()})
+                run.scalar("perf/steps_per_s", (run.step - start_step) / (time.perf_counter() - start_time))
+                losses.clear()
+                next_log += log_every
+            if run.checkpoint_due():
+                run.save(agent.algo, agent.state_dict(), {"experience": experience})
+    except KeyboardInterrupt:
+        run.save(agent.algo, agent.state_dict(), {"experience": experience}, periodic=False)
+        buffer.save(run.out / REPLAY_DIR, run.step)
+        print(f"\ninterrupted at env step {run.step:,}: saved {run.out / 'checkpoint.pt'} and its "
+              f"{buffer.size:,} replay transitions ({run.out / REPLAY_DIR}); continue with --resume", flush=True)
+        raise
     if losses:
         run.scalars({name: float(np.mean(values)) for name, values in losses.items()})
     run.save(agent.algo, agent.state_dict(), {"experience": experience}, periodic=False)

@@ -37,7 +37,7 @@ DEFAULTS = {
     "target_entropy": None,  # None: -dim(A)
     "learning_starts": 1000,  # [env steps] uniform random actions before learning
     "updates_per_step": 1.0,  # gradient steps per env transition
-    "resume_refill": 10_000,  # [transitions] a resumed run collects before updating (the buffer is not saved)
+    "resume_refill": 10_000,  # [transitions] a run resumed without its saved buffer collects before updating
     "random_shift": 4,  # [px] DrQ image augmentation in updates; 0: none
     "hidden": [256, 256],
     "cnn": {"channels": [16, 16, 64], "kernel": 5, "stride": 2, "pool": "avg"},  # §4.2

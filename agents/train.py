@@ -8,6 +8,9 @@ from __future__ import annotations
 
 import copy
 import json
+import signal
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -87,8 +90,10 @@ def agent_class(algo: str):
 def train(config: dict, out: str | Path, resume: bool = False, progress: bool = True) -> Path:
     """Train the learner `config["algo"]` for `config["steps"]` env steps; returns the policy.pt path.
 
-    `resume=True` continues from out/checkpoint.pt (networks, optimizers, step and episode counters;
-    an off-policy replay buffer is not saved and refills from the resumed policy). SAC and DQN may resume
+    `resume=True` continues from out/checkpoint.pt (networks, optimizers, step and episode counters). An
+    off-policy replay buffer comes back too if training was interrupted (Ctrl-C, SIGTERM: out/replay/ is saved
+    at checkpoint.pt's step); after a crash or from a periodic checkpoint it refills from the resumed policy
+    (`resume_refill`). SAC and DQN may resume
     with other learning rates (RESUME_TUNABLE), e.g. to fine-tune a checkpoint at a lower one.
     `config["init_from"]` (SAC/DQN, a new run): start from that checkpoint's networks and optimizer state
     on another task or observation (e.g. another camera); counters and the replay buffer start empty.
@@ -122,7 +127,7 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
 
             trpo.train(config, run, state)
         else:
-            from agents.off_policy import collect_demonstrations, demonstration_settings, run_off_policy
+            from agents.off_policy import REPLAY_DIR, collect_demonstrations, demonstration_settings, run_off_policy
 
             env = make_batched_env(config)
             agent = agent_class(algo)(config, env.single_observation_space, env.single_action_space)
@@ -132,6 +137,8 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
             buffer = ReplayBuffer(min(agent.hp["buffer_size"], int(config["steps"])), agent.layout,
                                   () if discrete else env.single_action_space.shape,
                                   np.int64 if discrete else np.float32)
+            if resume and (out / REPLAY_DIR).is_dir():
+                restore_replay(buffer, out / REPLAY_DIR, start_step)
             hp = {**agent.hp, "reward_scale": config.get("reward_scale", 1.0),
                   "log_every": config.get("log_every", 1000)}
             demonstrations, fraction = None, 0.0
@@ -147,6 +154,18 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
     finally:
         run.close()
     return export_policy(out / "checkpoint.pt", out / "policy.pt")
+
+
+def restore_replay(buffer: ReplayBuffer, directory: Path, step: int) -> bool:
+    """Load the replay buffer an interrupted run saved; one that does not fit (saved at another step, e.g. the
+    run crashed after a later periodic checkpoint, or another capacity) is reported and left out."""
+    try:
+        buffer.load(directory, step)
+    except (ValueError, OSError, KeyError) as error:
+        print(f"not restoring the replay buffer: {error}; refilling it from the resumed policy", flush=True)
+        return False
+    print(f"restored {buffer.size:,} replay transitions from {directory}", flush=True)
+    return True
 
 
 def export_policy(checkpoint: str | Path, out: str | Path) -> Path:
@@ -179,10 +198,20 @@ def train_command(args) -> int:
     if args.record_dir:
         config["record_dir"] = args.record_dir  # one MCAP log per training episode, per env copy
     out = args.out or f"runs/{config['algo']}_{config['task'].replace('/', '_')}_seed{config.get('seed', 0)}"
-    import time
 
+    def stop(signum, frame):  # SIGTERM (kill, a cluster's time limit) stops like Ctrl-C: state saved, see train
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, stop)
     start = time.perf_counter()
-    policy = train(config, out, resume=args.resume, progress=not args.no_progress)
+    try:
+        policy = train(config, out, resume=args.resume, progress=not args.no_progress)
+    except KeyboardInterrupt:
+        print(f"training stopped; {out}/checkpoint.pt holds the latest saved state (resume with --resume)",
+              file=sys.stderr)
+        return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     print(f"trained {config['algo']} on {config['task']} for {config['steps']:,} env steps in "
           f"{time.perf_counter() - start:.0f} s; wrote {out}/ (policy: {policy})")
     return 0

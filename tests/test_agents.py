@@ -142,8 +142,8 @@ def test_resume_may_lower_the_learning_rate_but_not_change_the_network(tmp_path)
 
 
 def test_resumed_off_policy_run_refills_its_buffer_before_updating(tmp_path):
-    """The replay buffer is not checkpointed: a resumed run must not take gradient steps on a handful of
-    fresh transitions (that overfits the critics); it waits for `resume_refill` of them."""
+    """Periodic checkpoints do not keep the replay buffer: a run resumed from one must not take gradient steps
+    on a handful of fresh transitions (that overfits the critics); it waits for `resume_refill` of them."""
     config = _config("sac", ["steps=128", *OFF_POLICY, "algorithm.resume_refill=96"])
     train(config, tmp_path, progress=False)
     updates = load_checkpoint(tmp_path / "checkpoint.pt")["state"]["updates"]
@@ -153,6 +153,95 @@ def test_resumed_off_policy_run_refills_its_buffer_before_updating(tmp_path):
     train({**config, "steps": 320}, tmp_path, resume=True, progress=False)  # 128 new ones: 32 past the refill
     resumed = load_checkpoint(tmp_path / "checkpoint.pt")["state"]["updates"]
     assert resumed - updates == pytest.approx(0.5 * 32, abs=2)  # updates_per_step x transitions past it
+
+
+def test_replay_buffer_saves_and_loads_its_transitions_including_after_wrapping(tmp_path):
+    from agents.common import ReplayBuffer
+    from mjdrive.envs.batched import ObservationLayout
+
+    config = _config("sac", CAMERA)
+    env = BatchedEnv(*config["task"].split("/"), num_envs=3, actions=config["actions"], **config["task_kwargs"])
+    obs, _ = env.reset(seed=1)
+    layout = ObservationLayout(env.single_observation_space)
+    env.close()
+    buffer = ReplayBuffer(7, layout, (3,))
+    rng = np.random.default_rng(0)
+    for _ in range(3):  # 9 transitions into 7 slots: wraps, position 2
+        varied = {k: (v + rng.integers(0, 50, v.shape)).astype(v.dtype) for k, v in obs.items()}
+        buffer.add(varied, rng.normal(size=(3, 3)).astype(np.float32), rng.normal(size=3), obs,
+                   rng.integers(0, 2, 3))
+    assert buffer.size == 7 and buffer.position == 2
+    buffer.save(tmp_path / "replay", step=9)
+    restored = ReplayBuffer(7, layout, (3,))
+    restored.load(tmp_path / "replay", step=9)
+    oldest_first = np.r_[2:7, 0:2]  # restored in the order they were added; the next add overwrites the oldest
+    assert (restored.size, restored.position) == (7, 0)
+    for name in ReplayBuffer.ARRAYS:
+        np.testing.assert_array_equal(getattr(restored, name), getattr(buffer, name)[oldest_first])
+    with pytest.raises(ValueError, match="saved at env step 9, the checkpoint is at 12"):
+        ReplayBuffer(7, layout, (3,)).load(tmp_path / "replay", step=12)
+    smaller = ReplayBuffer(4, layout, (3,))  # a resumed run with a smaller buffer keeps the newest transitions
+    smaller.load(tmp_path / "replay", step=9)
+    assert (smaller.size, smaller.position) == (4, 0)
+    np.testing.assert_array_equal(smaller.actions, buffer.actions[oldest_first[-4:]])
+    np.testing.assert_array_equal(smaller.images, buffer.images[oldest_first[-4:]])
+    larger = ReplayBuffer(10, layout, (3,))  # a larger one gets all of them, oldest first, and fills on
+    larger.load(tmp_path / "replay", step=9)
+    assert (larger.size, larger.position) == (7, 7)
+    np.testing.assert_array_equal(larger.rewards[:7], buffer.rewards[oldest_first])
+    with pytest.raises(ValueError, match="actions is float32\\[7, 3\\], this run stores float32\\[7, 2\\]"):
+        ReplayBuffer(7, layout, (2,)).load(tmp_path / "replay", step=9)
+
+
+def test_interrupted_off_policy_run_saves_its_buffer_and_resumes_without_the_refill(tmp_path, monkeypatch):
+    """Ctrl-C mid-run: checkpoint.pt and replay/ at the same step; --resume restores the transitions and
+    updates at once instead of waiting for `resume_refill` new ones (contrast with the test above)."""
+    config = _config("sac", ["steps=400", *OFF_POLICY, "algorithm.resume_refill=96"])
+    step = BatchedEnv.step
+    calls = []
+
+    def interrupted_step(self, actions):
+        calls.append(1)
+        if len(calls) == 60:  # 59 steps of 2 copies done
+            raise KeyboardInterrupt
+        return step(self, actions)
+
+    monkeypatch.setattr(BatchedEnv, "step", interrupted_step)
+    with pytest.raises(KeyboardInterrupt):
+        train(config, tmp_path, progress=False)
+    monkeypatch.setattr(BatchedEnv, "step", step)
+    saved = load_checkpoint(tmp_path / "checkpoint.pt")
+    assert saved["step"] == 118
+    assert json.loads((tmp_path / "replay" / "meta.json").read_text())["size"] == 118
+    updates = saved["state"]["updates"]
+    assert updates > 0
+    train({**config, "steps": 182}, tmp_path, resume=True, progress=False)  # 64 new transitions < the refill
+    resumed = load_checkpoint(tmp_path / "checkpoint.pt")["state"]["updates"]
+    assert resumed - updates == pytest.approx(0.5 * 64, abs=2)  # every new transition counted at once
+
+
+def test_sigterm_stops_mjdrive_train_with_its_state_saved(tmp_path):
+    """`kill` (SIGTERM) stops `mjdrive train` like Ctrl-C: exit code 130, checkpoint.pt and replay/ written."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    overrides = [f"--set={pair}" for pair in SMALL + OFF_POLICY] + ["--set=checkpoint_every=32"]
+    process = subprocess.Popen([sys.executable, "-m", "mjdrive.cli", "train", "--algo", "sac", "--steps", "100000",
+                                "--out", str(tmp_path), "--no-progress", *overrides],
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    deadline = time.monotonic() + 120
+    while not (tmp_path / "checkpoints" / "step_32.pt").exists():
+        assert process.poll() is None, process.communicate()[0]
+        assert time.monotonic() < deadline, "no checkpoint within 120 s"
+        time.sleep(0.2)
+    process.send_signal(signal.SIGTERM)
+    output = process.communicate(timeout=60)[0]
+    assert process.returncode == 130, output
+    step = load_checkpoint(tmp_path / "checkpoint.pt")["step"]
+    assert step >= 32 and "continue with --resume" in output
+    assert json.loads((tmp_path / "replay" / "meta.json").read_text())["step"] == step
 
 
 def test_a_new_run_can_start_from_another_runs_networks_on_another_camera(tmp_path):
