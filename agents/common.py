@@ -386,7 +386,7 @@ def load_module_state(module: nn.Module, state: dict, name: str) -> None:
 # --- run bookkeeping ----------------------------------------------------------------------------------
 
 EPISODE_FIELDS = ("episode", "env_step", "wall_s", "return", "length", "route_completion", "success",
-                  "collision", "lane_invasion", "off_road", "off_route", "time_limit")
+                  "collision", "lane_invasion", "off_road", "off_route", "time_limit", "task")
 
 
 class Run:
@@ -442,7 +442,7 @@ class Run:
             row = {"episode": self.episode, "env_step": self.step,
                    "wall_s": round(self.wall_offset + time.perf_counter() - self.start_time, 2),
                    "return": round(final["episode_return"], 3), "length": final["episode_length"],
-                   **{k: final[k] for k in EPISODE_FIELDS[5:] if k in final}}
+                   **{k: final[k] for k in EPISODE_FIELDS[5:] if k in final}}  # task: of a mix
             self._csv.writerow(row)
             self.recent = (self.recent + [final["episode_return"]])[-20:]
             self.scalar("episode/return", final["episode_return"])

@@ -355,7 +355,8 @@ def test_episode_log_is_flushed_as_episodes_end_and_resume_drops_later_rows(tmp_
     from agents.common import Run
 
     def ended(n):
-        return [{"episode_return": float(i), "episode_length": 10, "success": False} for i in range(n)]
+        return [{"episode_return": float(i), "episode_length": 10, "success": False, "task": "roundabout/d120"}
+                for i in range(n)]
 
     config = {"algo": "sac", "checkpoint_every": 0}
     run = Run(tmp_path, config, total_steps=100, progress=False, tensorboard=False)
@@ -371,6 +372,7 @@ def test_episode_log_is_flushed_as_episodes_end_and_resume_drops_later_rows(tmp_
     resumed.close()
     rows = (tmp_path / "episodes.csv").read_text().splitlines()
     assert [r.split(",")[:2] for r in rows[1:]] == [["1", "20"], ["2", "20"], ["3", "40"]]
+    assert rows[0].endswith(",time_limit,task") and all(r.endswith(",roundabout/d120") for r in rows[1:])
     walls = [float(r.split(",")[2]) for r in rows[1:]]
     assert walls == sorted(walls)  # wall-clock counts on from the resumed checkpoint
 

@@ -130,6 +130,12 @@ def test_copies_can_run_different_tasks_of_one_domain_each_as_its_single_env():
         obs, *_ = batched.step(np.stack([action] * 4))
         np.testing.assert_array_equal(obs["road_users"][1], road_users)
     batched.close()
+    short = BatchedEnv("roundabout", ["d120", "d160"], num_envs=2, observation="features", time_limit=0.4)
+    short.reset(seed=0)
+    for _ in range(2):  # 2 control steps of 0.2 s: both copies time out
+        info = short.step(np.stack([actions[0]] * 2))[-1]
+    assert [final["task"] for final in info["final_info"]] == ["roundabout/d120", "roundabout/d160"]
+    short.close()
     with pytest.raises(ValueError, match="rollout backend steps copies of one model"):
         BatchedEnv("roundabout", ["d120", "d160"], num_envs=2, backend="rollout", observation="features")
     with pytest.raises(ValueError, match="mix_tasks must be tasks of roundabout"):

@@ -79,6 +79,7 @@ class BatchedEnv:
             raise ValueError(f"the rollout backend steps copies of one model; got several tasks {tasks} "
                              "(use backend='threads' or 'serial')")
         self.task_names = [tasks[i % len(tasks)] for i in range(num_envs)]  # the task of each copy
+        self.task_ids = [f"{domain}/{name}" for name in self.task_names]  # as in final_info["task"]
         self.domain, self.task_name, self.actions = domain, tasks[0], actions
         self.task_kwargs = dict(task_kwargs)
         self.num_envs, self.nthread, self.backend, self.device = num_envs, max(1, nthread), backend, device
@@ -158,7 +159,7 @@ class BatchedEnv:
                 self.recorders[i].step(base.task, base.dm_env.physics, base.task.last_action, float(reward),
                                        terminated=bool(term), truncated=bool(trunc))
             if term or trunc:
-                final_info[i] = {**base.task.info, "time_limit": bool(trunc),
+                final_info[i] = {**base.task.info, "time_limit": bool(trunc), "task": self.task_ids[i],
                                  "episode_return": float(self.episode_returns[i]),
                                  "episode_length": int(self.episode_lengths[i])}
                 obs, _ = self._reset_copy(i)
