@@ -414,6 +414,10 @@ def test_select_checkpoint_ranks_a_runs_checkpoints_and_exports_the_chosen_one(t
     assert rewards[0] != rewards[1] and row["summary"]["avg_reward"] == pytest.approx(sum(rewards) / 2)
     for task, summary in row["per_task"].items():  # the failed episodes' seeds, kept for replaying them
         assert len(row["failures"][task]) == round(100 - summary["success_pct"]) // 100
+    tool.main([str(run), "--steps", "256", "--episodes", "1", "--out", str(out), "--time-limit", "1"])
+    (row,) = json.loads(out.with_suffix(".json").read_text())["checkpoints"]
+    assert row["summary"]["avg_time_s"] == pytest.approx(1.0) and row["summary"]["success_pct"] == 0
+    assert "time limit 1 s" in out.with_suffix(".md").read_text()
     with pytest.raises(SystemExit):
         tool.main([str(run), "--steps", "300", "--episodes", "1"])
 

@@ -11,7 +11,8 @@ Ranks by success %, then fewer collisions, then higher average reward. Writes OU
 actions; the task (and its kwargs) the run trained on unless --task is given. Several tasks (e.g. the four
 roundabout densities: `--task roundabout/d120 roundabout/d140 roundabout/d160 roundabout/d210`) run
 --episodes each on the same seeds and rank on the pooled figures (the mean of the per-task ones), with each
-task's success % in the table.
+task's success % in the table. `--time-limit 60` ends episodes of a policy that stands still after 60 s
+instead of the roundabout's 220 s (they fail either way; the agents' successful episodes take ~9 s).
 """
 
 from __future__ import annotations
@@ -64,6 +65,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=20_000, help="first validation seed")
     parser.add_argument("--task", nargs="+", default=None,
                         help="DOMAIN/TASK, or several to pool (default: the run's)")
+    parser.add_argument("--time-limit", type=float, default=None, metavar="S",
+                        help="[s] episode time limit instead of the task's (e.g. 60 against the roundabout's 220): "
+                             "an immature policy that stands still fails sooner, not differently; validation only")
     parser.add_argument("--export", type=Path, default=None, help="write the chosen policy (acting network only)")
     parser.add_argument("--out", type=Path, default=None, help="write OUT.md and OUT.json")
     args = parser.parse_args(argv)
@@ -77,10 +81,11 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"no checkpoint for steps {missing} in {args.run_dir}/checkpoints; "
                          f"there are {[step for step, _ in checkpoints]}")
         checkpoints = [(step, path) for step, path in checkpoints if step in args.steps]
+    task_kwargs = None if args.time_limit is None else {"time_limit": args.time_limit}
     for step, path in checkpoints:
         per_task, failures = {}, {}
         for task in args.task or [None]:
-            result = evaluate(path, episodes=args.episodes, task=task, seed=args.seed,
+            result = evaluate(path, episodes=args.episodes, task=task, seed=args.seed, task_kwargs=task_kwargs,
                               progress=f"step {step:,}" + (f" {task}" if task else ""))
             per_task[result["task"]] = result["summary"]
             failures[result["task"]] = {row["seed"]: row["end"] for row in result["rows"] if not row["success"]}
@@ -98,7 +103,9 @@ def main(argv: list[str] | None = None) -> int:
     command = "python tools/select_checkpoint.py " + shlex.join(sys.argv[1:] if argv is None else argv)
     lines = [f"# Checkpoint selection: {args.run_dir}", "", f"`{command}`", "",
              f"{args.episodes} greedy episodes per checkpoint and task on {best['task']}, seeds "
-             f"{args.seed}...{args.seed + args.episodes - 1}; ranked by success, then collisions, then reward.",
+             f"{args.seed}...{args.seed + args.episodes - 1}"
+             + (f", time limit {args.time_limit:g} s" if args.time_limit is not None else "")
+             + "; ranked by success, then collisions, then reward.",
              "", "| env step | success % | collision % | avg reward | avg time (s) | avg speed (m/s) |"
              + ("" if len(best["per_task"]) == 1 else " success % per task |"),
              "| ---: | ---: | ---: | ---: | ---: | ---: |" + ("" if len(best["per_task"]) == 1 else " --- |")]
