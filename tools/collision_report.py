@@ -9,7 +9,9 @@ before [m/s]:
     python tools/collision_report.py results/checkpoints/sac_camera_state_demos_ft_roundabout_122k.pt \\
         --eval runs/eval/ft_fail_d160.json
 
-Writes a markdown table to stdout (and OUT.md with --out).
+Writes a markdown table to stdout (and OUT.md with --out); `--frames DIR` also saves what the agent saw in the
+last 1.6 s before each contact (DIR/seed_SEED.png, oldest frame left), to tell a road user it could not see
+from one it misjudged.
 """
 
 from __future__ import annotations
@@ -29,11 +31,14 @@ from mjdrive.envs import make_env  # noqa: E402
 from mjdrive.sensors import wrap_angle  # noqa: E402
 
 HISTORY = 5  # [steps] 1 s at 5 Hz
+FRAMES = 8  # [steps] of camera images in a --frames strip (1.6 s)
 
 
-def describe_collision(agent, env, seed: int) -> dict | None:
-    """Replay episode `seed` with `agent`; the contact's description, or None if it does not collide."""
+def describe_collision(agent, env, seed: int, frames: Path | None = None) -> dict | None:
+    """Replay episode `seed` with `agent`; the contact's description, or None if it does not collide. With
+    `frames`, the agent's camera images of the last FRAMES steps are written to frames/seed_SEED.png."""
     obs, _ = env.reset(seed=seed)
+    seen = []  # the newest camera frame of each step's observation
     dm = env.unwrapped.dm_env
     task, physics = dm.task, dm.physics
     model = physics.model
@@ -42,6 +47,8 @@ def describe_collision(agent, env, seed: int) -> dict | None:
     poses, speeds, ego = [], [], []  # per step: road users (M, 3) x, y, yaw and (M,) [m/s]; ego (x, y, yaw, speed)
     while True:
         obs, _, terminated, truncated, info = env.step(agent.act({k: v[None] for k, v in obs.items()})[0])
+        if "image" in obs:
+            seen = (seen + [obs["image"][-1] if obs["image"].ndim == 3 else obs["image"]])[-FRAMES:]
         poses.append(task.traffic.poses().copy())
         speeds.append(np.hypot(*task.traffic.velocities().T))
         ego.append((*task.xy, task.yaw, task.speed))
@@ -49,6 +56,8 @@ def describe_collision(agent, env, seed: int) -> dict | None:
             break
     if not info.get("collision"):
         return None
+    if frames is not None and seen:
+        write_strip(seen, frames / f"seed_{seed}.png")
     geom = task.collision_sensor.last_other_geom
     body = model.body(int(model.geom_bodyid[geom])).name
     row = {"seed": seed, "step": len(ego), "hit": model.geom(geom).name, "kind": "static"}
@@ -68,6 +77,17 @@ def describe_collision(agent, env, seed: int) -> dict | None:
     return row
 
 
+def write_strip(images: list[np.ndarray], path: Path, zoom: int = 3) -> None:
+    """The images side by side (oldest left, the collision step right), `zoom` times larger, as a PNG."""
+    from PIL import Image
+
+    gap = np.full((images[0].shape[0], 2, *images[0].shape[2:]), 255, np.uint8)
+    strip = np.concatenate([part for image in images for part in (image, gap)][:-1], axis=1)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    picture = Image.fromarray(strip)
+    picture.resize((picture.width * zoom, picture.height * zoom), Image.NEAREST).save(path)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("checkpoint", type=Path)
@@ -75,6 +95,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, nargs="*", default=[], help="episode seeds to replay")
     parser.add_argument("--task", default=None, help="DOMAIN/TASK (default: the eval JSON's, else the run's)")
     parser.add_argument("--out", type=Path, default=None, help="also write OUT.md")
+    parser.add_argument("--frames", type=Path, default=None,
+                        help=f"write the agent's camera frames of the last {FRAMES} steps to FRAMES/seed_SEED.png")
     args = parser.parse_args(argv)
 
     agent, payload = load_agent(args.checkpoint)
@@ -95,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
              "(left +) and heading relative to the ego's [deg]; speeds [m/s] 0.2 s and 1 s before the contact.", "",
              "| " + " | ".join(columns) + " |", "|" + " ---: |" * len(columns)]
     for seed in seeds:
-        row = describe_collision(agent, env, seed)
+        row = describe_collision(agent, env, seed, args.frames)
         if row is None:
             lines.append(f"| {seed} | no collision on replay |" + " |" * (len(columns) - 2))
             continue
