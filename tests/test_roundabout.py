@@ -135,6 +135,27 @@ def test_ego_hitting_a_traffic_car_is_a_real_contact_and_ends_the_episode(env210
     assert any(task.collision_sensor.last_other_geom in pair for pair in geoms)  # a MuJoCo contact
 
 
+def test_collision_penalty_sets_what_the_same_crash_costs():
+    """`collision_penalty` replaces eq. 12's 100 in the collision term and nothing else."""
+    costs = {}
+    for penalty in (100.0, 300.0):
+        env = suite.load("roundabout", "d210", {"random": 0, "collision_penalty": penalty})
+        env.reset()
+        task = env.task
+        task.traffic.remove_all()
+        task.traffic.place(0, task.route[1:], s=6.5, speed=0.0, desired_speed=0.0)
+        driver = Autopilot(task, env.control_timestep(), careful=False)
+        while not (timestep := env.step(driver(env.physics))).last():
+            pass
+        assert task.info["collision"]
+        costs[penalty] = (timestep.reward, dict(task.reward_terms))
+    (reward_100, terms_100), (reward_300, terms_300) = costs[100.0], costs[300.0]
+    assert terms_100["collision"] == -100.0 and terms_300["collision"] == -300.0
+    assert reward_100 - reward_300 == pytest.approx(200.0)  # the same crash, the other terms equal
+    with pytest.raises(ValueError, match="collision_penalty"):
+        suite.load("roundabout", "d120", {"collision_penalty": -1.0})
+
+
 def test_reward_terms_follow_eq_12(env210):
     env = env210
     env.reset()

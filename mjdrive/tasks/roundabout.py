@@ -35,6 +35,7 @@ ends the episode (terminated, `info["off_route"]`, not a success). The study lis
 and 1100 steps, but under eq. 12 alone circling the ring pays: v/10 earns up to 3 per step, so over 1100
 steps a missed exit outscores arriving (+100) many times over. Pass `off_route=None` for the study's rule.
 `off_route_penalty` (default 0, the study's eq. 12) is subtracted on that step (term "off_route");
+`collision_penalty` (default 100, eq. 12) is what a collision costs (a larger one trades speed for caution);
 `destination_frame="ego"` gives the destination vector in the car's frame (x ahead, y left) instead of
 the study's world frame. `camera_ego=True` adds the features' ego vector to the "camera" observation (the
 study's camera agent sees only frames and the destination). Leaving the road costs only 0.05 per step
@@ -127,6 +128,7 @@ class RoundaboutTask(DrivingTask):
         image_size: int = 84,  # [px]
         frames: int = 4,
         speed_reward: bool = True,  # R_t3 (the paper's sum leaves it out; the spec keeps it)
+        collision_penalty: float = 100.0,  # eq. 12's R_t1 = -100 on collision
         off_route: float | None = 5.0,  # [m] from the route's centre line that ends the episode; None: never
         off_route_penalty: float = 0.0,  # subtracted when the episode ends off the route (the study has none)
         destination_frame: str = "world",  # "world" (§4.2) or "ego": the destination vector in the car's frame
@@ -154,6 +156,9 @@ class RoundaboutTask(DrivingTask):
         self.image_size = image_size
         self.frames = frames
         self.speed_reward = speed_reward
+        if collision_penalty < 0:
+            raise ValueError(f"collision_penalty is subtracted on a collision; give it >= 0, got {collision_penalty}")
+        self.collision_penalty = float(collision_penalty)
         if off_route is not None and off_route <= 0:
             raise ValueError(f"off_route must be a positive distance [m] or None, got {off_route}")
         self.off_route = off_route
@@ -276,7 +281,7 @@ class RoundaboutTask(DrivingTask):
         info["remaining_distance"] = remaining
         v_kmh = min(max(self.speed * 3.6, 0.0), SPEED_LIMIT_KMH)
         terms = {
-            "collision": -100.0 * collision,
+            "collision": -self.collision_penalty * collision,
             "progress": self.remaining - remaining,
             "speed": v_kmh / 10.0 if self.speed_reward else 0.0,
             "off_road": -0.05 * off_share,
