@@ -168,16 +168,22 @@ def to_markdown(result: dict) -> str:
     return "\n".join(lines)
 
 
-def eval_command(args) -> int:
-    """`mjdrive eval` (argument parsing lives in mjdrive/cli.py): prints markdown, writes OUT.md/OUT.json."""
-    import json
-
+def parse_task_kwargs(pairs: list[str]) -> dict[str, Any]:
+    """`--task-kwarg KEY=VALUE` pairs as a dict, each VALUE read as YAML (numbers, booleans, lists)."""
     task_kwargs = {}
-    for pair in args.task_kwarg:
+    for pair in pairs:
         if "=" not in pair:
             raise ValueError(f"--task-kwarg expects KEY=VALUE, got {pair!r}")
         key, value = pair.split("=", 1)
         task_kwargs[key] = parse_yaml(value)
+    return task_kwargs
+
+
+def eval_command(args) -> int:
+    """`mjdrive eval` (argument parsing lives in mjdrive/cli.py): prints markdown, writes OUT.md/OUT.json."""
+    import json
+
+    task_kwargs = parse_task_kwargs(args.task_kwarg)
     record_dir = None
     if args.record:
         name = Path(args.out).name if args.out else Path(args.checkpoint).stem

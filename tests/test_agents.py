@@ -493,3 +493,29 @@ def test_demonstrations_go_through_the_mixed_tasks_in_turn(monkeypatch):
                                                progress=False)
     assert counts["episodes"] >= 2 and counts["success"] == counts["episodes"]
     assert resets[:3] == ["d120", "d160", "d120"][:len(resets)] and len(resets) == counts["episodes"] + 1
+
+
+def test_roundabout_table3_scores_every_density_with_task_kwargs_over_the_checkpoints(tmp_path):
+    """tools/roundabout_table3.py: one row per density; --task-kwarg overrides what the agent trained with
+    (here a 1 s time limit, so every episode ends on it) and the report says both."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(
+        "roundabout_table3", Path(__file__).resolve().parents[1] / "tools" / "roundabout_table3.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    run = tmp_path / "run"
+    config = _config("sac", ["steps=64", *OFF_POLICY, "task=roundabout/d120", "actions=pedal",
+                             "task_kwargs.collision_penalty=300"])
+    train(config, run, progress=False)
+    out = tmp_path / "table3"
+    tool.main(["--agent", "SAC", str(run / "policy.pt"), str(run / "episodes.csv"), "--episodes", "1",
+               "--task-kwarg", "time_limit=1", "--task-kwarg", "collision_penalty=100", "--out", str(out)])
+    summary = json.loads(out.with_suffix(".json").read_text())["SAC"]
+    assert list(summary) == ["d120", "d140", "d160", "d210"]
+    for level in summary.values():
+        assert level["task_kwargs"]["collision_penalty"] == 100 and level["task_kwargs"]["time_limit"] == 1
+        assert level["summary"]["avg_time_s"] <= 1.0 + 1e-9
+    report = out.with_suffix(".md").read_text()
+    assert "'collision_penalty': 300" in report and "scored with {'time_limit': 1, 'collision_penalty': 100}" in report

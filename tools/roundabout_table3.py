@@ -7,7 +7,8 @@ wall-clock from the run's episodes.csv.
         --agent SAC results/checkpoints/sac_camera_roundabout.pt results/roundabout/sac_camera_episodes.csv \\
         --agent DQN results/checkpoints/dqn_camera_roundabout.pt --out results/roundabout/table3
 
-Every agent runs the same episodes (seeds --seed..., the task kwargs it was trained with) at each density;
+Every agent runs the same episodes (seeds --seed..., the task kwargs it was trained with, updated by
+--task-kwarg) at each density;
 `mjdrive eval` does one density at a time with per-episode rows. Writes OUT.md and OUT.json.
 """
 
@@ -24,7 +25,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from agents.evaluate import evaluate  # noqa: E402
+from agents.common import load_checkpoint  # noqa: E402
+from agents.evaluate import evaluate, parse_task_kwargs  # noqa: E402
 from mjdrive.tasks.roundabout import DENSITIES  # noqa: E402
 
 # Table 3 of the study (Ben Elallid et al. 2024): density -> (avg reward, time s, speed m/s, distance m,
@@ -71,8 +73,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=10_000)
     parser.add_argument("--stochastic", action="store_true",
                         help="sample actions from the policy (torch seeded per episode) instead of greedy ones")
+    parser.add_argument("--task-kwarg", action="append", default=[], metavar="KEY=VALUE",
+                        help="task keyword argument over the checkpoint's, e.g. collision_penalty=100 to score an "
+                             "agent trained with another penalty under eq. 12 (repeatable)")
     parser.add_argument("--out", default=None, help="write OUT.md and OUT.json")
     args = parser.parse_args(argv)
+    task_kwargs = parse_task_kwargs(args.task_kwarg)
     for spec in args.agent:
         if len(spec) not in (2, 3):
             parser.error(f"--agent takes NAME CHECKPOINT [EPISODES_CSV], got {spec}")
@@ -81,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     for name, checkpoint, *csv_path in args.agent:
         for level in args.levels:
             result = evaluate(checkpoint, episodes=args.episodes, task=f"roundabout/{level}", seed=args.seed,
-                              deterministic=not args.stochastic, progress=f"{name} {level}")
+                              task_kwargs=task_kwargs, deterministic=not args.stochastic, progress=f"{name} {level}")
             results.setdefault(name, {})[level] = result
             s = result["summary"]
             rows.append(f"| {name} | {level} | {s['avg_reward']:.2f} | {s['avg_time_s']:.2f} | "
@@ -90,8 +96,11 @@ def main(argv: list[str] | None = None) -> int:
                         f"{s['success_on_road_pct']:.0f} |")
             print(rows[-1], flush=True)
         first = next(iter(results[name].values()))
+        trained_kwargs = load_checkpoint(checkpoint)["config"].get("task_kwargs", {})
         line = (f"- {name}: `{checkpoint}`, {first['algo']} trained on {first['trained_on']} "
-                f"{first['task_kwargs']} for {first['train_steps']:,} env steps")
+                f"{trained_kwargs} for {first['train_steps']:,} env steps")
+        if task_kwargs:
+            line += f", scored with {task_kwargs}"
         if csv_path:
             wall, episodes = training_wall_clock(Path(csv_path[0]), first["train_steps"])
             line += f", {episodes:,} episodes, {wall / 60:.0f} min wall-clock on this machine"
