@@ -99,7 +99,8 @@ def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None
             "end": end_reason(info, terminated, truncated),
         })
     env.close()
-    return {"checkpoint": str(checkpoint), "algo": payload["algo"], "trained_on": config["task"],
+    trained_on = " + ".join([config["task"], *(config.get("mix_tasks") or [])])  # a mix: every task in turn
+    return {"checkpoint": str(checkpoint), "algo": payload["algo"], "trained_on": trained_on,
             "train_steps": payload["step"], "task": task, "task_kwargs": kwargs, "episodes": episodes,
             "deterministic": deterministic, "seed": seed, "wall_s": round(time.perf_counter() - start, 1),
             "summary": summarize(rows), "rows": rows}

@@ -507,7 +507,7 @@ def test_roundabout_table3_scores_every_density_with_task_kwargs_over_the_checkp
     spec.loader.exec_module(tool)
     run = tmp_path / "run"
     config = _config("sac", ["steps=64", *OFF_POLICY, "task=roundabout/d120", "actions=pedal",
-                             "task_kwargs.collision_penalty=300"])
+                             "mix_tasks=[roundabout/d140]", "task_kwargs.collision_penalty=300"])
     train(config, run, progress=False)
     out = tmp_path / "table3"
     tool.main(["--agent", "SAC", str(run / "policy.pt"), str(run / "episodes.csv"), "--episodes", "1",
@@ -518,4 +518,5 @@ def test_roundabout_table3_scores_every_density_with_task_kwargs_over_the_checkp
         assert level["task_kwargs"]["collision_penalty"] == 100 and level["task_kwargs"]["time_limit"] == 1
         assert level["summary"]["avg_time_s"] <= 1.0 + 1e-9
     report = out.with_suffix(".md").read_text()
+    assert "trained on roundabout/d120 + roundabout/d140 {" in report
     assert "'collision_penalty': 300" in report and "scored with {'time_limit': 1, 'collision_penalty': 100}" in report
