@@ -156,16 +156,15 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
     return export_policy(out / "checkpoint.pt", out / "policy.pt")
 
 
-def restore_replay(buffer: ReplayBuffer, directory: Path, step: int) -> bool:
+def restore_replay(buffer: ReplayBuffer, directory: Path, step: int) -> None:
     """Load the replay buffer an interrupted run saved; one that does not fit (saved at another step, e.g. the
-    run crashed after a later periodic checkpoint, or another capacity) is reported and left out."""
+    run crashed after a later periodic checkpoint, or for other shapes; unreadable) is reported and left out."""
     try:
         buffer.load(directory, step)
     except (ValueError, OSError, KeyError) as error:
         print(f"not restoring the replay buffer: {error}; refilling it from the resumed policy", flush=True)
-        return False
+        return
     print(f"restored {buffer.size:,} replay transitions from {directory}", flush=True)
-    return True
 
 
 def export_policy(checkpoint: str | Path, out: str | Path) -> Path:
