@@ -38,6 +38,7 @@ DEFAULTS = {
     "learning_starts": 1000,  # [env steps] uniform random actions before learning
     "updates_per_step": 1.0,  # gradient steps per env transition
     "resume_refill": 10_000,  # [transitions] a run resumed without its saved buffer collects before updating
+    "critic_warmup": 0,  # [updates] the first ones train only the critic heads and alpha (start from a policy.pt)
     "random_shift": 4,  # [px] DrQ image augmentation in updates; 0: none
     "hidden": [256, 256],
     "cnn": {"channels": [16, 16, 64], "kernel": 5, "stride": 2, "pool": "avg"},  # §4.2
@@ -148,7 +149,9 @@ class SACAgent:
             q1_next, q2_next = self.critic_target(next_obs, next_a)
             v_next = torch.min(q1_next, q2_next) - alpha * next_log_prob
             target = batch["rewards"] + hp["gamma"] * (1.0 - batch["terminated"]) * v_next
-        latent = self.critic.encoder(obs.features, obs.image)
+        warmup = self.updates < hp["critic_warmup"]  # new critic heads learn on the loaded encoder's features
+        with torch.set_grad_enabled(not warmup):
+            latent = self.critic.encoder(obs.features, obs.image)
         q1, q2 = self.critic.heads(latent, batch["actions"])
         critic_loss = F.mse_loss(q1, target) + F.mse_loss(q2, target)
         self.critic_optimizer.zero_grad()
@@ -160,18 +163,21 @@ class SACAgent:
         if self.updates % hp["policy_every"] == 0:  # delayed actor updates (TD3 / CleanRL style)
             latent = latent.detach()  # the actor does not train the encoder
             for _ in range(hp["policy_every"]):
-                a, log_prob, _ = self.actor.sample(latent)
-                q1_pi, q2_pi = self.critic.heads(latent, a)
-                actor_loss = (self.log_alpha.exp().detach() * log_prob - torch.min(q1_pi, q2_pi)).mean()  # eq 9
-                self.actor_optimizer.zero_grad()
-                actor_loss.backward()
-                self.actor_optimizer.step()
+                with torch.set_grad_enabled(not warmup):
+                    a, log_prob, _ = self.actor.sample(latent)
+                if not warmup:
+                    q1_pi, q2_pi = self.critic.heads(latent, a)
+                    actor_loss = (self.log_alpha.exp().detach() * log_prob - torch.min(q1_pi, q2_pi)).mean()  # eq 9
+                    self.actor_optimizer.zero_grad()
+                    actor_loss.backward()
+                    self.actor_optimizer.step()
+                    info["actor_loss"] = actor_loss.item()
                 if hp["autotune"]:
                     alpha_loss = -(self.log_alpha.exp() * (log_prob.detach() + self.target_entropy)).mean()
                     self.alpha_optimizer.zero_grad()
                     alpha_loss.backward()
                     self.alpha_optimizer.step()
-            info.update(actor_loss=actor_loss.item(), entropy=-log_prob.mean().item())
+            info["entropy"] = -log_prob.mean().item()
 
         if self.updates % hp["target_every"] == 0:
             with torch.no_grad():
@@ -188,8 +194,11 @@ class SACAgent:
                 "alpha_optimizer": self.alpha_optimizer.state_dict(), "updates": self.updates}
 
     def load_state_dict(self, state: dict, inference_only: bool = False) -> None:
+        """Networks, optimizers and counters; `inference_only`: the actor and its encoder only (a policy.pt),
+        the critic heads stay new and the target critic copies the loaded encoder."""
         load_module_state(self.actor, state["actor"], "SAC actor")
         if inference_only:
+            self.critic_target.load_state_dict(self.critic.state_dict())
             return
         load_module_state(self.critic, state["critic"], "SAC critic")
         load_module_state(self.critic_target, state["critic_target"], "SAC target critic")

@@ -33,6 +33,7 @@ INFERENCE_KEYS = {"sac": ("actor",), "dqn": ("q",), "ppo": ("actor_state_dict",)
 RESUME_KEYS = ("algo", "task", "mix_tasks", "task_kwargs", "actions", "num_envs", "algorithm", "rsl_rl")
 # algorithm keys a resumed run may change (fine-tuning at a lower learning rate); the rest must match
 RESUME_TUNABLE = {"sac": ("actor_lr", "critic_lr", "resume_refill"), "dqn": ("lr", "resume_refill")}
+SAC_NETWORK_KEYS = ("hidden", "cnn", "log_std_range")  # what a SAC policy.pt must share with a run it starts
 
 
 def check_resumable(saved: dict, config: dict, keys: tuple[str, ...] = RESUME_KEYS, action: str = "resume") -> None:
@@ -50,20 +51,35 @@ def check_resumable(saved: dict, config: dict, keys: tuple[str, ...] = RESUME_KE
                                   f"({saved.get(key)!r} vs {config.get(key)!r}){hint}")
 
 
-def load_initial_state(path: str | Path, config: dict) -> tuple[dict, int]:
-    """(learner state, its env steps of experience) of checkpoint `path` for a new run `config` to start from
-    (`init_from`): the same learner, actions and algorithm settings (learning rates aside); the task and its
-    observation may differ."""
+def load_initial_state(path: str | Path, config: dict) -> tuple[dict, int, bool]:
+    """(learner state, its env steps of experience, whether it is the acting network only) of checkpoint `path`
+    for a new run `config` to start from (`init_from`): the same learner, actions and algorithm settings
+    (learning rates aside); the task and its observation may differ. A SAC policy.pt (acting network only) may
+    start a run whose new critics learn first (`algorithm.critic_warmup` updates); then only the network
+    settings must match."""
     algo = config.get("algo")
     if algo not in RESUME_TUNABLE:
         raise CheckpointError(f"init_from: only {', '.join(RESUME_TUNABLE)} runs can start from another run's "
                               f"networks, not {algo!r}")
     payload = load_checkpoint(path, algo)
-    if payload["extra"].get("inference_only"):
+    experience = int(payload["step"]) + int(payload["extra"].get("experience", 0))
+    if not payload["extra"].get("inference_only"):
+        check_resumable(payload["config"], config, ("algo", "actions", "algorithm"), f"start from {path}")
+        return payload["state"], experience, False
+    if algo != "sac" or int(config.get("algorithm", {}).get("critic_warmup", 0)) <= 0:
         raise CheckpointError(f"init_from: {path} holds only the acting network (a policy.pt); start from a full "
-                              "checkpoint (a run's checkpoint.pt or checkpoints/step_N.pt)")
-    check_resumable(payload["config"], config, ("algo", "actions", "algorithm"), f"start from {path}")
-    return payload["state"], int(payload["step"]) + int(payload["extra"].get("experience", 0))
+                              "checkpoint (a run's checkpoint.pt or checkpoints/step_N.pt)"
+                              + (", or set algorithm.critic_warmup > 0 so that new critics learn before the actor"
+                                 if algo == "sac" else ""))
+    check_resumable(payload["config"], config, ("algo", "actions"), f"start from {path}")
+    from agents.sac import DEFAULTS
+
+    def network(settings: dict) -> dict:
+        return {key: {**DEFAULTS, **settings.get("algorithm", {})}[key] for key in SAC_NETWORK_KEYS}
+
+    check_resumable({"algorithm": network(payload["config"])}, {"algorithm": network(config)}, ("algorithm",),
+                    f"start from {path}")
+    return payload["state"], experience, True
 
 
 def agent_class(algo: str):
@@ -96,7 +112,8 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
     (`resume_refill`). SAC and DQN may resume
     with other learning rates (RESUME_TUNABLE), e.g. to fine-tune a checkpoint at a lower one.
     `config["init_from"]` (SAC/DQN, a new run): start from that checkpoint's networks and optimizer state
-    on another task or observation (e.g. another camera); counters and the replay buffer start empty.
+    on another task or observation (e.g. another camera); counters and the replay buffer start empty. A SAC
+    policy.pt works too with `algorithm.critic_warmup` > 0: its actor and encoder, with new critics.
     """
     config = copy.deepcopy(config)
     algo = config.get("algo")
@@ -105,7 +122,7 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
     torch.set_num_threads(int(config.get("torch_threads", 1)))
     seed = int(config.get("seed", 0))
     set_seed(seed)
-    start_step, start_episode, state, experience = 0, 0, None, 0
+    start_step, start_episode, state, experience, acting_only = 0, 0, None, 0, False
     if resume:
         payload = load_checkpoint(out / "checkpoint.pt", algo)
         check_resumable(payload["config"], config)
@@ -114,7 +131,7 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
         experience = payload["extra"].get("experience", 0)  # of the networks a run started from (init_from)
         set_seed(seed + start_step)
     elif config.get("init_from"):
-        state, experience = load_initial_state(config["init_from"], config)
+        state, experience, acting_only = load_initial_state(config["init_from"], config)
     run = Run(out, config, total_steps=int(config["steps"]), start_step=start_step,
               start_episode=start_episode, progress=progress, tensorboard=config.get("tensorboard", True))
     try:
@@ -132,7 +149,7 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
             env = make_batched_env(config)
             agent = agent_class(algo)(config, env.single_observation_space, env.single_action_space)
             if state is not None:
-                agent.load_state_dict(state)
+                agent.load_state_dict(state, inference_only=acting_only)
             discrete = algo == "dqn"
             buffer = ReplayBuffer(min(agent.hp["buffer_size"], int(config["steps"])), agent.layout,
                                   () if discrete else env.single_action_space.shape,

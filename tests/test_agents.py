@@ -264,11 +264,30 @@ def test_a_new_run_can_start_from_another_runs_networks_on_another_camera(tmp_pa
     final = load_checkpoint(tmp_path / "wide" / "checkpoint.pt")
     assert final["step"] == 128 and final["extra"]["experience"] == saved["step"]  # its own steps + the source's
     assert final["state"]["updates"] - saved["state"]["updates"] == pytest.approx(0.5 * 32, abs=2)
-    with pytest.raises(CheckpointError, match="holds only the acting network"):
+    with pytest.raises(CheckpointError, match="holds only the acting network.*critic_warmup"):
         train({**wide, "init_from": str(tmp_path / "source" / "policy.pt")}, tmp_path / "x", progress=False)
     wider = apply_overrides(wide, ["algorithm.hidden=[32,32]"])
     with pytest.raises(CheckpointError, match="cannot start from .*config 'algorithm' differs"):
         train(wider, tmp_path / "y", progress=False)
+    with pytest.raises(CheckpointError, match="cannot start from .*config 'algorithm' differs"):
+        train({**wider, "algorithm": {**wider["algorithm"], "critic_warmup": 8},
+               "init_from": str(tmp_path / "source" / "policy.pt")}, tmp_path / "y2", progress=False)
+
+    # from a policy.pt (actor and encoder only): new critics learn alone for `critic_warmup` updates
+    acting = apply_overrides(wide, ["checkpoint_every=16", "algorithm.critic_warmup=10", "algorithm.alpha=0.05",
+                                    f"init_from={tmp_path / 'source' / 'policy.pt'}"])
+    train(acting, tmp_path / "acting", progress=False)
+    before = load_checkpoint(tmp_path / "acting" / "checkpoints" / "step_80.pt")["state"]
+    warm = load_checkpoint(tmp_path / "acting" / "checkpoints" / "step_112.pt")["state"]
+    final = load_checkpoint(tmp_path / "acting" / "checkpoint.pt")["state"]
+    assert before["updates"] == 0 and 0 < warm["updates"] <= 10 < final["updates"]
+    for name, value in saved["state"]["actor"].items():
+        torch.testing.assert_close(warm["actor"][name], value)  # the actor and the encoder wait
+        if name.startswith("encoder."):  # the target critic starts from the loaded encoder
+            torch.testing.assert_close(before["critic_target"][name], value)
+    assert not torch.equal(warm["critic"]["q1.0.weight"], before["critic"]["q1.0.weight"])
+    for name in ("mean.weight", "encoder.cnn.net.0.weight"):  # then the actor and the encoder learn
+        assert not torch.equal(final["actor"][name], saved["state"]["actor"][name])
     with pytest.raises(CheckpointError, match="only sac, dqn runs can start"):
         train({**_config("ppo", ["steps=64"]), "init_from": str(tmp_path / "source" / "checkpoint.pt")},
               tmp_path / "z", progress=False)
