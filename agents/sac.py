@@ -39,6 +39,7 @@ DEFAULTS = {
     "updates_per_step": 1.0,  # gradient steps per env transition
     "resume_refill": 10_000,  # [transitions] a run resumed without its saved buffer collects before updating
     "critic_warmup": 0,  # [updates] the first ones train only the critic heads and alpha (start from a policy.pt)
+    "freeze_encoder": False,  # keep the encoder's weights: only the actor and critic heads learn (fine-tuning)
     "random_shift": 4,  # [px] DrQ image augmentation in updates; 0: none
     "hidden": [256, 256],
     "cnn": {"channels": [16, 16, 64], "kernel": 5, "stride": 2, "pool": "avg"},  # §4.2
@@ -150,7 +151,7 @@ class SACAgent:
             v_next = torch.min(q1_next, q2_next) - alpha * next_log_prob
             target = batch["rewards"] + hp["gamma"] * (1.0 - batch["terminated"]) * v_next
         warmup = self.updates < hp["critic_warmup"]  # new critic heads learn on the loaded encoder's features
-        with torch.set_grad_enabled(not warmup):
+        with torch.set_grad_enabled(not (warmup or hp["freeze_encoder"])):
             latent = self.critic.encoder(obs.features, obs.image)
         q1, q2 = self.critic.heads(latent, batch["actions"])
         critic_loss = F.mse_loss(q1, target) + F.mse_loss(q2, target)

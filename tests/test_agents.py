@@ -288,6 +288,17 @@ def test_a_new_run_can_start_from_another_runs_networks_on_another_camera(tmp_pa
     assert not torch.equal(warm["critic"]["q1.0.weight"], before["critic"]["q1.0.weight"])
     for name in ("mean.weight", "encoder.cnn.net.0.weight"):  # then the actor and the encoder learn
         assert not torch.equal(final["actor"][name], saved["state"]["actor"][name])
+
+    # freeze_encoder (a fine-tuning setting, so it may differ from the source's): only the heads learn
+    frozen = apply_overrides(acting, ["algorithm.freeze_encoder=true",
+                                      f"init_from={tmp_path / 'acting' / 'checkpoint.pt'}"])
+    train(frozen, tmp_path / "frozen", progress=False)
+    after = load_checkpoint(tmp_path / "frozen" / "checkpoint.pt")["state"]
+    assert after["updates"] > final["updates"]
+    for name, value in final["critic"].items():
+        same = torch.equal(after["critic"][name], value)
+        assert same == name.startswith("encoder."), name
+    assert not torch.equal(after["actor"]["mean.weight"], final["actor"]["mean.weight"])
     with pytest.raises(CheckpointError, match="only sac, dqn runs can start"):
         train({**_config("ppo", ["steps=64"]), "init_from": str(tmp_path / "source" / "checkpoint.pt")},
               tmp_path / "z", progress=False)
