@@ -381,6 +381,31 @@ def test_sac_actor_reads_the_critics_encoder_and_only_the_critic_trains_it():
     assert any(not torch.equal(a, b) for a, b in zip(before, agent.critic.encoder.parameters(), strict=True))
 
 
+def test_sac_bc_alpha_pulls_the_actor_towards_the_replayed_actions():
+    """TD3+BC's term: with bc_alpha > 0 the greedy action moves to the batch's actions, without it it need not."""
+    from agents.common import ObsBatch
+
+    env = BatchedEnv("waypoints", "straight", num_envs=1)
+    features = ObsBatch(torch.randn(32, 18), None)  # 15 waypoint angles, heading error, lane offset, speed
+    target = torch.tensor([0.6, -0.4, 0.2])
+    data = {"obs": features, "next_obs": features, "actions": target.expand(32, 3).clone(),
+            "rewards": torch.zeros(32), "terminated": torch.zeros(32)}
+    distance = {}
+    for bc_alpha in (0.0, 0.1):
+        torch.manual_seed(0)
+        config = _config("sac", ["algorithm.policy_every=1", "algorithm.actor_lr=3e-3",
+                                 f"algorithm.bc_alpha={bc_alpha}"])
+        agent = agent_class("sac")(config, env.single_observation_space, env.single_action_space)
+        for _ in range(60):
+            info = agent.update(data)
+        assert ("bc_loss" in info) == (bc_alpha > 0)
+        with torch.no_grad():
+            mean_action = agent.actor.sample(agent.actor.encode(features))[2]
+        distance[bc_alpha] = float((mean_action - target).abs().max())
+    env.close()
+    assert distance[0.1] < 0.1 < 0.5 < distance[0.0], distance
+
+
 def test_episode_log_is_flushed_as_episodes_end_and_resume_drops_later_rows(tmp_path):
     from agents.common import Run
 
