@@ -50,6 +50,7 @@ def run_off_policy(agent: Any, env: BatchedEnv, run: Run, buffer: ReplayBuffer, 
     log_every = int(hp.get("log_every", 1000))
     batch_size = int(hp["batch_size"])
     demo_batch = round(batch_size * demo_fraction) if demonstrations is not None and demonstrations.size else 0
+    demo_rows = torch.arange(batch_size) >= batch_size - demo_batch  # which rows of a batch are demonstrations
     min_buffer = batch_size  # transitions in the buffer before updates
     if run.step > 0 or experience > 0:
         min_buffer = max(min_buffer, min(int(hp.get("resume_refill", 10_000)), buffer.capacity))
@@ -69,6 +70,7 @@ def run_off_policy(agent: Any, env: BatchedEnv, run: Run, buffer: ReplayBuffer, 
                     batch = buffer.sample(batch_size - demo_batch)
                     if demo_batch:
                         batch = concat_batches(batch, demonstrations.sample(demo_batch))
+                        batch["demonstration"] = demo_rows
                     for name, value in agent.update(batch).items():
                         losses.setdefault(name, []).append(value)
                     debt -= 1.0

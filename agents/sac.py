@@ -40,7 +40,7 @@ DEFAULTS = {
     "resume_refill": 10_000,  # [transitions] a run resumed without its saved buffer collects before updating
     "critic_warmup": 0,  # [updates] the first ones train only the critic heads and alpha (start from a policy.pt)
     "freeze_encoder": False,  # keep the encoder's weights: only the actor and critic heads learn (fine-tuning)
-    "bc_alpha": 0.0,  # > 0: TD3+BC's alpha, the actor also imitates the replayed actions (Q term scaled by 1/mean|Q|)
+    "bc_alpha": 0.0,  # > 0: TD3+BC's alpha, the actor also imitates the demonstrations (if none: the replayed actions)
     "random_shift": 4,  # [px] DrQ image augmentation in updates; 0: none
     "hidden": [256, 256],
     "cnn": {"channels": [16, 16, 64], "kernel": 5, "stride": 2, "pool": "avg"},  # §4.2
@@ -172,7 +172,8 @@ class SACAgent:
                     q_pi = torch.min(q1_pi, q2_pi)
                     actor_loss = (self.log_alpha.exp().detach() * log_prob - q_pi).mean()  # eq 9
                     if hp["bc_alpha"] > 0:  # Fujimoto & Gu 2021: lambda Q - (pi(s) - a)^2, lambda = alpha / mean|Q|
-                        bc_loss = F.mse_loss(mean_action, batch["actions"], reduction="none").sum(-1).mean()
+                        rows = batch.get("demonstration", slice(None))  # imitate the demonstrations if any
+                        bc_loss = F.mse_loss(mean_action[rows], batch["actions"][rows], reduction="none").sum(-1).mean()
                         actor_loss = hp["bc_alpha"] / q_pi.abs().mean().detach() * actor_loss + bc_loss
                         info["bc_loss"] = bc_loss.item()
                     self.actor_optimizer.zero_grad()

@@ -32,7 +32,7 @@ INFERENCE_KEYS = {"sac": ("actor",), "dqn": ("q",), "ppo": ("actor_state_dict",)
 # config keys that must match to resume a run
 RESUME_KEYS = ("algo", "task", "mix_tasks", "task_kwargs", "actions", "num_envs", "algorithm", "rsl_rl")
 # algorithm keys a resumed run may change (fine-tuning at a lower learning rate); the rest must match
-RESUME_TUNABLE = {"sac": ("actor_lr", "critic_lr", "resume_refill", "freeze_encoder", "bc_alpha"),
+RESUME_TUNABLE = {"sac": ("actor_lr", "critic_lr", "resume_refill", "freeze_encoder", "bc_alpha", "autotune"),
                   "dqn": ("lr", "resume_refill")}
 SAC_NETWORK_KEYS = ("hidden", "cnn", "log_std_range")  # what a SAC policy.pt must share with a run it starts
 

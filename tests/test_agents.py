@@ -381,15 +381,19 @@ def test_sac_actor_reads_the_critics_encoder_and_only_the_critic_trains_it():
     assert any(not torch.equal(a, b) for a, b in zip(before, agent.critic.encoder.parameters(), strict=True))
 
 
-def test_sac_bc_alpha_pulls_the_actor_towards_the_replayed_actions():
-    """TD3+BC's term: with bc_alpha > 0 the greedy action moves to the batch's actions, without it it need not."""
+def test_sac_bc_alpha_pulls_the_actor_towards_the_demonstrated_actions():
+    """TD3+BC's term: with bc_alpha > 0 the greedy action moves to the demonstrations' actions (the batch rows
+    flagged `demonstration`; the others are ignored), without it it need not."""
     from agents.common import ObsBatch
 
     env = BatchedEnv("waypoints", "straight", num_envs=1)
-    features = ObsBatch(torch.randn(32, 18), None)  # 15 waypoint angles, heading error, lane offset, speed
+    states = torch.randn(16, 18)  # 15 waypoint angles, heading error, lane offset, speed
+    features = ObsBatch(torch.cat([states, states]), None)  # each state twice: once the agent's, once demonstrated
     target = torch.tensor([0.6, -0.4, 0.2])
-    data = {"obs": features, "next_obs": features, "actions": target.expand(32, 3).clone(),
-            "rewards": torch.zeros(32), "terminated": torch.zeros(32)}
+    demonstration = torch.arange(32) >= 16
+    actions = torch.where(demonstration[:, None], target, -target)  # the agent's own rows do the opposite
+    data = {"obs": features, "next_obs": features, "actions": actions, "rewards": torch.zeros(32),
+            "terminated": torch.zeros(32), "demonstration": demonstration}
     distance = {}
     for bc_alpha in (0.0, 0.1):
         torch.manual_seed(0)
@@ -401,7 +405,7 @@ def test_sac_bc_alpha_pulls_the_actor_towards_the_replayed_actions():
         assert ("bc_loss" in info) == (bc_alpha > 0)
         with torch.no_grad():
             mean_action = agent.actor.sample(agent.actor.encode(features))[2]
-        distance[bc_alpha] = float((mean_action - target).abs().max())
+        distance[bc_alpha] = float((mean_action[demonstration] - target).abs().max())
     env.close()
     assert distance[0.1] < 0.1 < 0.5 < distance[0.0], distance
 
