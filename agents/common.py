@@ -442,7 +442,7 @@ class Run:
             row = {"episode": self.episode, "env_step": self.step,
                    "wall_s": round(self.wall_offset + time.perf_counter() - self.start_time, 2),
                    "return": round(final["episode_return"], 3), "length": final["episode_length"],
-                   **{k: final[k] for k in EPISODE_FIELDS[5:] if k in final}}  # task: of a mix
+                   **{k: final[k] for k in EPISODE_FIELDS[5:] if k in final}}
             self._csv.writerow(row)
             self.recent = (self.recent + [final["episode_return"]])[-20:]
             self.scalar("episode/return", final["episode_return"])

@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections import deque
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +39,7 @@ def describe_collision(agent, env, seed: int, frames: Path | None = None) -> dic
     """Replay episode `seed` with `agent`; the contact's description, or None if it does not collide. With
     `frames`, the agent's camera images of the last FRAMES steps are written to frames/seed_SEED.png."""
     obs, _ = env.reset(seed=seed)
-    seen = []  # the newest camera frame of each step's observation
+    seen = deque(maxlen=FRAMES)  # the newest camera frame of each step's (frames, H, W) observation
     dm = env.unwrapped.dm_env
     task, physics = dm.task, dm.physics
     model = physics.model
@@ -48,7 +49,7 @@ def describe_collision(agent, env, seed: int, frames: Path | None = None) -> dic
     while True:
         obs, _, terminated, truncated, info = env.step(agent.act({k: v[None] for k, v in obs.items()})[0])
         if "image" in obs:
-            seen = (seen + [obs["image"][-1] if obs["image"].ndim == 3 else obs["image"]])[-FRAMES:]
+            seen.append(obs["image"][-1])
         poses.append(task.traffic.poses().copy())
         speeds.append(np.hypot(*task.traffic.velocities().T))
         ego.append((*task.xy, task.yaw, task.speed))
@@ -57,7 +58,7 @@ def describe_collision(agent, env, seed: int, frames: Path | None = None) -> dic
     if not info.get("collision"):
         return None
     if frames is not None and seen:
-        write_strip(seen, frames / f"seed_{seed}.png")
+        write_strip(list(seen), frames / f"seed_{seed}.png")
     geom = task.collision_sensor.last_other_geom
     body = model.body(int(model.geom_bodyid[geom])).name
     row = {"seed": seed, "step": len(ego), "hit": model.geom(geom).name, "kind": "static"}
