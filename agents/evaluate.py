@@ -19,19 +19,28 @@ from mjdrive.envs import make_env
 
 
 def load_agent(path: str | Path) -> tuple[Any, dict]:
-    """(agent ready to act, checkpoint payload) from a full checkpoint or a policy.pt."""
+    """(agent ready to act, checkpoint payload) from a full checkpoint, a policy.pt or an ensemble."""
     payload = load_checkpoint(path)
+    if payload["algo"] == "ensemble":
+        from agents.ensemble import ensemble_agent
+
+        return ensemble_agent(payload, path), payload
+    return agent_from_payload(payload, str(path)), payload
+
+
+def agent_from_payload(payload: dict, name: str) -> Any:
+    """The acting agent of a loaded checkpoint payload (`name` for errors)."""
     config = payload["config"]
     domain, task = split_task(config["task"])
     env = make_env(domain, task, actions=config.get("actions", "continuous"), **config.get("task_kwargs", {}))
     try:
         agent = agent_class(payload["algo"])(config, env.observation_space, env.action_space)
     except (KeyError, TypeError) as error:
-        raise CheckpointError(f"{path}: its config cannot build a {payload['algo']} agent ({error})") from error
+        raise CheckpointError(f"{name}: its config cannot build a {payload['algo']} agent ({error})") from error
     finally:
         env.close()
     agent.load_state_dict(payload["state"], inference_only=True)
-    return agent, payload
+    return agent
 
 
 def end_reason(info: dict, terminated: bool, truncated: bool) -> str:
@@ -103,6 +112,7 @@ def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None
     return {"checkpoint": str(checkpoint), "algo": payload["algo"], "trained_on": trained_on,
             "train_steps": payload["step"], "task": task, "task_kwargs": kwargs, "episodes": episodes,
             "deterministic": deterministic, "seed": seed, "wall_s": round(time.perf_counter() - start, 1),
+            **({"ensemble": config["ensemble"]} if "ensemble" in config else {}),
             "summary": summarize(rows), "rows": rows}
 
 
@@ -138,6 +148,11 @@ def to_markdown(result: dict) -> str:
         f"{result['seed'] + result['episodes'] - 1}.",
         "",
     ]
+    if result.get("ensemble"):
+        members = result["ensemble"]["members"]
+        lines += [f"An ensemble of {len(members)} (rule {result['ensemble']['rule']!r}; the steps above are its "
+                        "longest-trained member's): " + ", ".join(f"`{m['checkpoint']}` ({m['algo']}, {m['step']:,} "
+                                                                  "steps)" for m in members) + ".", ""]
     if result["task"].startswith("roundabout"):
         lines += [
             "| agent | avg reward | avg time (s) | avg speed (m/s) | avg distance (m) | avg steps | success % "

@@ -1,4 +1,4 @@
-"""`mjdrive list | run | bench | replay | logs`: the command line."""
+"""`mjdrive list | run | bench | replay | logs | train | eval | ensemble`: the command line."""
 
 from __future__ import annotations
 
@@ -144,6 +144,12 @@ def cmd_eval(args) -> int:
     return eval_command(args)
 
 
+def cmd_ensemble(args) -> int:
+    from agents.ensemble import ensemble_command
+
+    return ensemble_command(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mjdrive", description="MuJoCo driving-simulation suite for RL.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -221,6 +227,14 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--record-dir", default=None,
                           help="where the logs go (default: runs/eval/NAME/, NAME from --out or the checkpoint)")
     evaluate.set_defaults(func=cmd_eval)
+
+    ensemble = sub.add_parser("ensemble", help="combine trained policies into one that `eval` reads like a policy.pt")
+    ensemble.add_argument("members", nargs="+", help="policy.pt or checkpoint files of runs on the same observation")
+    ensemble.add_argument("--rule", default="min_pedal",
+                          help="'mean' (the mean action) or 'min_pedal' (the smallest pedal with the mean steer, "
+                               "pedal actions; default)")
+    ensemble.add_argument("--out", required=True, help="the ensemble checkpoint to write")
+    ensemble.set_defaults(func=cmd_ensemble)
     return parser
 
 
