@@ -579,3 +579,12 @@ def test_roundabout_table3_scores_every_density_with_task_kwargs_over_the_checkp
     report = out.with_suffix(".md").read_text()
     assert "trained on roundabout/d120 + roundabout/d140 {" in report
     assert "'collision_penalty': 300" in report and "scored with {'time_limit': 1, 'collision_penalty': 100}" in report
+    # an ensemble reads like a policy and the report names its members
+    from agents.ensemble import save_ensemble
+
+    ensemble = save_ensemble([run / "policy.pt", run / "checkpoint.pt"], "min_pedal", tmp_path / "ensemble.pt")
+    tool.main(["--agent", "SACx2", str(ensemble), "--episodes", "1", "--levels", "d120", "--task-kwarg",
+               "time_limit=1", "--out", str(out)])
+    report = out.with_suffix(".md").read_text()
+    assert "| SACx2 | d120 |" in report and "an ensemble, rule 'min_pedal', of `" in report
+    assert f"`{run / 'checkpoint.pt'}` (64 steps)" in report

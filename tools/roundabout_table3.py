@@ -92,13 +92,17 @@ def main(argv: list[str] | None = None) -> int:
             s = result["summary"]
             rows.append(f"| {name} | {level} | {s['avg_reward']:.2f} | {s['avg_time_s']:.2f} | "
                         f"{s['avg_speed_m_s']:.2f} | {s['avg_distance_m']:.2f} | {s['avg_steps']:.1f} | "
-                        f"{s['success_pct']:.0f} | {s['collision_pct']:.0f} | {other_ends(result['rows'])} | "
-                        f"{s['success_on_road_pct']:.0f} |")
+                        f"{s['success_pct']:g} | {s['collision_pct']:g} | {other_ends(result['rows'])} | "
+                        f"{s['success_on_road_pct']:g} |")
             print(rows[-1], flush=True)
         first = next(iter(results[name].values()))
         trained_kwargs = load_checkpoint(checkpoint)["config"].get("task_kwargs", {})
         line = (f"- {name}: `{checkpoint}`, {first['algo']} trained on {first['trained_on']} "
                 f"{trained_kwargs} for {first['train_steps']:,} env steps")
+        if first.get("ensemble"):
+            members = first["ensemble"]["members"]
+            line += (f" (its longest-trained member's; an ensemble, rule {first['ensemble']['rule']!r}, of "
+                     + ", ".join(f"`{m['checkpoint']}` ({m['step']:,} steps)" for m in members) + ")")
         if task_kwargs:
             line += f", scored with {task_kwargs}"
         if csv_path:
