@@ -34,12 +34,24 @@ RULES = ("mean", "min_pedal")
 CONTINUOUS_ACTIONS = ("continuous", "pedal")  # action sets whose actions can be averaged
 
 
+def check_rule(rule: str) -> None:
+    """ValueError naming the valid rules for an unknown one."""
+    if rule not in RULES:
+        raise ValueError(f"unknown ensemble rule {rule!r}; valid: {', '.join(RULES)}")
+
+
+def describe(ensemble: dict) -> str:
+    """One line for reports from an ensemble checkpoint's `config["ensemble"]`: rule and members."""
+    members = ensemble["members"]
+    return (f"an ensemble of {len(members)}, rule {ensemble['rule']!r}, of "
+            + ", ".join(f"`{m['checkpoint']}` ({m['algo']}, {m['step']:,} steps)" for m in members))
+
+
 class EnsembleAgent:
     """Acts like one agent: `act(obs, deterministic)` combines the members' actions by `rule`."""
 
     def __init__(self, members: list[Any], rule: str):
-        if rule not in RULES:
-            raise ValueError(f"unknown ensemble rule {rule!r}; valid: {', '.join(RULES)}")
+        check_rule(rule)
         self.members, self.rule = members, rule
 
     def act(self, obs: dict[str, np.ndarray], deterministic: bool = True) -> np.ndarray:
@@ -91,8 +103,7 @@ def _same_observations(a: list[dict], b: list[dict]) -> bool:
 def save_ensemble(members: list[str | Path], rule: str, out: str | Path) -> Path:
     """Write an ensemble checkpoint of `members` (policy.pt or full checkpoints, which must stay where they
     are) combined by `rule`."""
-    if rule not in RULES:
-        raise ValueError(f"unknown ensemble rule {rule!r}; valid: {', '.join(RULES)}")
+    check_rule(rule)
     if len(members) < 2:
         raise ValueError(f"an ensemble needs at least 2 members, got {len(members)}")
     payloads = [load_checkpoint(path) for path in members]

@@ -149,10 +149,9 @@ def to_markdown(result: dict) -> str:
         "",
     ]
     if result.get("ensemble"):
-        members = result["ensemble"]["members"]
-        lines += [f"An ensemble of {len(members)} (rule {result['ensemble']['rule']!r}; the steps above are its "
-                        "longest-trained member's): " + ", ".join(f"`{m['checkpoint']}` ({m['algo']}, {m['step']:,} "
-                                                                  "steps)" for m in members) + ".", ""]
+        from agents.ensemble import describe
+
+        lines += [f"This is {describe(result['ensemble'])}; the steps above are its longest-trained member's.", ""]
     if result["task"].startswith("roundabout"):
         lines += [
             "| agent | avg reward | avg time (s) | avg speed (m/s) | avg distance (m) | avg steps | success % "

@@ -586,5 +586,5 @@ def test_roundabout_table3_scores_every_density_with_task_kwargs_over_the_checkp
     tool.main(["--agent", "SACx2", str(ensemble), "--episodes", "1", "--levels", "d120", "--task-kwarg",
                "time_limit=1", "--out", str(out)])
     report = out.with_suffix(".md").read_text()
-    assert "| SACx2 | d120 |" in report and "an ensemble, rule 'min_pedal', of `" in report
-    assert f"`{run / 'checkpoint.pt'}` (64 steps)" in report
+    assert "| SACx2 | d120 |" in report and "an ensemble of 2, rule 'min_pedal', of `" in report
+    assert f"`{run / 'checkpoint.pt'}` (sac, 64 steps)" in report

@@ -72,7 +72,7 @@ def test_an_ensemble_file_names_its_members_and_evaluates_like_a_policy(tmp_path
     np.testing.assert_array_equal(agent.act(obs), expected)
     result = evaluate(path, episodes=1, task_kwargs={"time_limit": 3})
     assert result["algo"] == "ensemble" and result["rows"][0]["steps"] == 30
-    assert "An ensemble of 2 (rule 'min_pedal'" in to_markdown(result)
+    assert "This is an ensemble of 2, rule 'min_pedal', of `" in to_markdown(result)
 
     members[1].write_bytes(members[1].read_bytes() + b"\0")  # a member changed after the ensemble was made
     with pytest.raises(CheckpointError, match="has changed since the ensemble was made"):

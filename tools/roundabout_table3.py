@@ -26,6 +26,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from agents.common import load_checkpoint  # noqa: E402
+from agents.ensemble import describe  # noqa: E402
 from agents.evaluate import evaluate, parse_task_kwargs  # noqa: E402
 from mjdrive.tasks.roundabout import DENSITIES  # noqa: E402
 
@@ -100,9 +101,7 @@ def main(argv: list[str] | None = None) -> int:
         line = (f"- {name}: `{checkpoint}`, {first['algo']} trained on {first['trained_on']} "
                 f"{trained_kwargs} for {first['train_steps']:,} env steps")
         if first.get("ensemble"):
-            members = first["ensemble"]["members"]
-            line += (f" (its longest-trained member's; an ensemble, rule {first['ensemble']['rule']!r}, of "
-                     + ", ".join(f"`{m['checkpoint']}` ({m['step']:,} steps)" for m in members) + ")")
+            line += f" (its longest-trained member's: {describe(first['ensemble'])})"
         if task_kwargs:
             line += f", scored with {task_kwargs}"
         if csv_path:
