@@ -42,6 +42,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from mjdrive.config import Config, ConfigError, param
 from mjdrive.roads import RoadMap
 from mjdrive.traffic_map import TrafficMap
 from mjdrive.world import TrafficSlot
@@ -89,28 +90,40 @@ KIND_INDEX = {name: i for i, name in enumerate(KIND_NAMES)}
 
 
 @dataclass(frozen=True)
-class TrafficConfig:
-    """Behaviour constants shared by every road user."""
+class TrafficConfig(Config):
+    """Behaviour constants shared by every road user (validated; `TrafficConfig.from_dict` takes a dict)."""
 
-    min_gap: float = 2.5  # [m] IDM s0: the study's safe distance to the vehicle ahead
-    stop_gap: float = 0.5  # [m] IDM s0 in front of a stop line
-    max_decel: float = 8.0  # [m/s^2] emergency braking limit
-    lateral_accel: float = 2.0  # [m/s^2] curve speed: v <= sqrt(lateral_accel / curvature)
-    accept_gap: float = 3.5  # [s] an entering vehicle goes if no priority vehicle reaches the merge sooner
-    merge_clearance: float = 5.0  # [m] ... and none is nearer than this (bumper to merge point)
-    merge_speed: float = 3.0  # [m/s] slower circulating vehicles count as this fast in the gap check
-    yield_speed: float = 2.5  # [m/s] entering vehicles reach their yield line no faster than this
-    corridor_range: float = 25.0  # [m] how far ahead the corridor check looks
-    corridor_margin: float = 0.3  # [m] lateral margin of the corridor
-    lane_change_rate: tuple[float, float] = (0.5, 0.5)  # [1/s] to the right, to the left neighbour
-    lane_change_length: float = 15.0  # [m] distance over which a lane change moves across
-    spawn_clear: float = 14.0  # [m] a source spawns only if nothing is this close to its start
-    crosswalk_margin: float = 1.0  # [m] vehicles stop this far before a crosswalk / a pedestrian's band
-    kerb: float = 0.9  # [m] where pedestrians wait, beyond the end of the crosswalk
-    pedestrian_wait: tuple[float, float] = (2.0, 10.0)  # [s] wait at the kerb before looking for a gap
-    respawn: bool = True  # vehicles that left the map re-enter at the sources
-    decision_period: float = 0.6  # [s] behaviour updates (about a driver's reaction time)
-    substep: float = 0.02  # [s] pose resolution (mocap written at this period)
+    min_gap: float = param(2.5, "IDM s0: the study's safe distance to the vehicle ahead", "m", ge=0.5, le=20.0)
+    stop_gap: float = param(0.5, "IDM s0 in front of a stop line", "m", ge=0.0, le=10.0)
+    max_decel: float = param(8.0, "emergency braking limit", "m/s^2", gt=0.0, le=15.0)
+    lateral_accel: float = param(2.0, "curve speed: v <= sqrt(lateral_accel / curvature)", "m/s^2", gt=0.0, le=10.0)
+    accept_gap: float = param(3.5, "an entering vehicle goes if no priority vehicle reaches the merge sooner", "s",
+                              ge=0.0, le=20.0)
+    merge_clearance: float = param(5.0, "... and none is nearer than this (bumper to merge point)", "m",
+                                   ge=0.0, le=50.0)
+    merge_speed: float = param(3.0, "slower circulating vehicles count as this fast in the gap check", "m/s",
+                               ge=0.0, le=20.0)
+    yield_speed: float = param(2.5, "entering vehicles reach their yield line no faster than this", "m/s",
+                               gt=0.0, le=20.0)
+    corridor_range: float = param(25.0, "how far ahead the corridor check looks", "m", gt=0.0, le=100.0)
+    corridor_margin: float = param(0.3, "lateral margin of the corridor", "m", ge=0.0, le=3.0)
+    lane_change_rate: tuple[float, float] = param((0.5, 0.5), "lane changes to the right, to the left neighbour",
+                                                  "1/s", ge=0.0, le=10.0)
+    lane_change_length: float = param(15.0, "distance over which a lane change moves across", "m", gt=1.0, le=100.0)
+    spawn_clear: float = param(14.0, "a source spawns only if nothing is this close to its start", "m",
+                               ge=0.0, le=100.0)
+    crosswalk_margin: float = param(1.0, "vehicles stop this far before a crosswalk / a pedestrian's band", "m",
+                                    ge=0.0, le=10.0)
+    kerb: float = param(0.9, "where pedestrians wait, beyond the end of the crosswalk", "m", ge=0.0, le=5.0)
+    pedestrian_wait: tuple[float, float] = param((2.0, 10.0), "wait at the kerb before looking for a gap "
+                                                 "(uniform, min and max)", "s", ge=0.0, le=120.0)
+    respawn: bool = param(True, "vehicles that left the map re-enter at the sources")
+    decision_period: float = param(0.6, "behaviour updates (about a driver's reaction time)", "s", gt=0.0, le=5.0)
+    substep: float = param(0.02, "pose resolution (mocap written at this period)", "s", gt=0.0, le=0.2)
+
+    def check(self) -> None:
+        if self.pedestrian_wait[0] > self.pedestrian_wait[1]:
+            raise ConfigError(f"pedestrian_wait={self.pedestrian_wait}: the minimum must not exceed the maximum")
 
 
 @dataclass

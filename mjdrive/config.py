@@ -1,0 +1,275 @@
+"""Configuration as validated data: every keyword with its type, default, unit and valid range or choices.
+
+A task's keywords are one frozen dataclass (a `Config` subclass) whose fields are declared with `param`:
+
+    @dataclass(frozen=True)
+    class WaypointsConfig(DrivingConfig):
+        waypoint_spacing: float = param(2.0, "distance between waypoints", "m", gt=0.0, le=20.0)
+
+`WaypointsConfig.from_dict(kwargs)` converts what a user typed (Python values, JSON or YAML scalars) to the
+declared types and checks every range and choice; a bad value raises `ConfigError` naming the keyword, the
+value and what is allowed, an unknown keyword lists the valid ones and suggests the closest. `describe()`
+gives the table printed by `mjdrive list --kwargs DOMAIN/TASK` and written to docs/task_kwargs.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import types
+import typing
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, Union
+
+import numpy as np
+
+
+class ConfigError(ValueError):
+    """A keyword with an unknown name or a value outside what it allows (a user's mistake, not a bug)."""
+
+
+@dataclass(frozen=True)
+class Spec:
+    """What a keyword allows, beyond its type: bounds (each element of a tuple), choices, dict keys."""
+
+    doc: str
+    unit: str = ""
+    ge: float | None = None
+    gt: float | None = None
+    le: float | None = None
+    lt: float | None = None
+    choices: tuple[Any, ...] | None = None
+    length: int | None = None  # exact length of a tuple value
+    keys: tuple[str, ...] | None = None  # allowed keys of a dict value
+
+    def bounds_text(self) -> str:
+        lower = f">= {self.ge:g}" if self.ge is not None else f"> {self.gt:g}" if self.gt is not None else ""
+        upper = f"<= {self.le:g}" if self.le is not None else f"< {self.lt:g}" if self.lt is not None else ""
+        return " and ".join(part for part in (lower, upper) if part)
+
+
+def param(default: Any, doc: str, unit: str = "", **allowed: Any) -> Any:
+    """A config field: its default, a one-line description, its unit ("" for none) and what it allows
+    (`ge`, `gt`, `le`, `lt` bounds; `choices`; `length` of a tuple; `keys` of a dict)."""
+    return dataclasses.field(default=default, metadata={"spec": Spec(doc, unit, **allowed)})
+
+
+def _spec(field: dataclasses.Field) -> Spec:
+    return field.metadata.get("spec") or Spec(doc="")
+
+
+def _type_name(tp: Any) -> str:
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin in (Union, types.UnionType):
+        return " | ".join(_type_name(a) for a in args)
+    if origin is tuple:
+        return f"tuple[{_type_name(args[0])}, ...]" if len(args) == 2 and args[1] is Ellipsis else \
+            "tuple[" + ", ".join(_type_name(a) for a in args) + "]"
+    if origin is dict:
+        return f"dict[{_type_name(args[0])}, {_type_name(args[1])}]"
+    if tp is type(None):
+        return "None"
+    return getattr(tp, "__name__", str(tp))
+
+
+def _show(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+class _Invalid(Exception):
+    """Internal: why one value does not fit its type or spec (turned into a ConfigError with the keyword)."""
+
+
+def _check_bounds(value: float, spec: Spec) -> None:
+    bad = ((spec.ge is not None and not value >= spec.ge) or (spec.gt is not None and not value > spec.gt)
+           or (spec.le is not None and not value <= spec.le) or (spec.lt is not None and not value < spec.lt))
+    if bad:
+        raise _Invalid(f"must be {spec.bounds_text()}")
+
+
+def _convert(value: Any, tp: Any, spec: Spec) -> Any:
+    """`value` converted to the type `tp` and checked against `spec`; raises _Invalid with the reason."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin in (Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        reasons = []
+        for option in (a for a in args if a is not type(None)):
+            try:
+                return _convert(value, option, spec)
+            except _Invalid as error:
+                reasons.append(str(error))
+        raise _Invalid(reasons[0] if len(reasons) == 1 else f"must be {_type_name(tp)}")
+    if tp is bool:
+        if isinstance(value, (bool, np.bool_)):
+            return bool(value)
+        raise _Invalid("must be true or false")
+    if tp is int:
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+            raise _Invalid("must be an integer")
+        if isinstance(value, (float, np.floating)) and not float(value).is_integer():
+            raise _Invalid("must be an integer")
+        value = int(value)
+        _check_bounds(value, spec)
+        return value
+    if tp is float:
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+            raise _Invalid("must be a number")
+        value = float(value)
+        if not math.isfinite(value):
+            raise _Invalid("must be a finite number")
+        _check_bounds(value, spec)
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise _Invalid("must be a string")
+        if spec.choices is not None and value not in spec.choices:
+            raise _Invalid("must be one of " + ", ".join(repr(c) for c in spec.choices))
+        return value
+    if origin is tuple:
+        if isinstance(value, (str, bytes)) or not isinstance(value, (list, tuple, np.ndarray)):
+            raise _Invalid(f"must be a list ({_type_name(tp)})")
+        items = list(value)
+        variadic = len(args) == 2 and args[1] is Ellipsis
+        length = spec.length if variadic else len(args)
+        if length is not None and len(items) != length:
+            raise _Invalid(f"must have {length} elements, got {len(items)}")
+        if variadic and not items:
+            raise _Invalid("must not be empty")
+        element_types = [args[0]] * len(items) if variadic else list(args)
+        element_spec = dataclasses.replace(spec, choices=None)
+        out = []
+        for i, (item, element_type) in enumerate(zip(items, element_types, strict=True)):
+            try:
+                out.append(_convert(item, element_type, element_spec))
+            except _Invalid as error:
+                raise _Invalid(f"element {i} ({_show(item)}) {error}") from None
+        out = tuple(out)
+        if spec.choices is not None:
+            bad = [item for item in out if item not in spec.choices]
+            if bad:
+                raise _Invalid("elements must be among " + ", ".join(repr(c) for c in spec.choices))
+        if len(set(out)) != len(out) and variadic:
+            raise _Invalid("must not repeat an element")
+        return out
+    if origin is dict:
+        if not isinstance(value, Mapping):
+            raise _Invalid(f"must be a mapping ({_type_name(tp)})")
+        key_type, value_type = args
+        out = {}
+        for key, item in value.items():
+            key = _convert(key, key_type, Spec(doc=""))
+            if spec.keys is not None and key not in spec.keys:
+                raise _Invalid(f"unknown key {key!r}; valid keys: {', '.join(spec.keys)}")
+            try:
+                out[key] = _convert(item, value_type, dataclasses.replace(spec, keys=None))
+            except _Invalid as error:
+                raise _Invalid(f"[{key!r}]={_show(item)} {error}") from None
+        return out
+    if isinstance(tp, type) and issubclass(tp, Config):
+        if isinstance(value, tp):
+            return value
+        if isinstance(value, Mapping):
+            try:
+                return tp.from_dict(value)
+            except ConfigError as error:
+                raise _Invalid(f"has a bad entry: {error}") from None
+        raise _Invalid(f"must be a mapping of {tp.__name__} keywords")
+    if isinstance(tp, type):
+        if isinstance(value, tp):
+            return value
+        raise _Invalid(f"must be a {tp.__name__}")
+    raise TypeError(f"config fields of type {tp!r} are not supported")  # a bug in a Config declaration
+
+
+@dataclass(frozen=True)
+class Config:
+    """Base of validated configurations: frozen, every field declared with `param`."""
+
+    def __post_init__(self) -> None:
+        hints = typing.get_type_hints(type(self))
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            try:
+                converted = _convert(value, hints[field.name], _spec(field))
+            except _Invalid as error:
+                raise ConfigError(f"{field.name}={_show(value)}: {error}") from None
+            object.__setattr__(self, field.name, converted)
+        self.check()
+
+    def check(self) -> None:
+        """Checks that involve several fields (override; raise ConfigError)."""
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any] | None = None, defaults: Mapping[str, Any] | None = None,
+                  where: str = ""):
+        """The config of `values` over `defaults` (both keyword -> value); unknown keywords raise ConfigError
+        listing the valid ones, bad values one naming the keyword, the value and what is allowed."""
+        values = dict(values or {})
+        names = [f.name for f in dataclasses.fields(cls)]
+        unknown = [key for key in values if key not in names]
+        if unknown:
+            key = unknown[0]
+            close = difflib.get_close_matches(str(key), names, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            context = f" for {where}" if where else ""
+            raise ConfigError(f"unknown keyword {key!r}{context}{hint}; valid keywords: {', '.join(names)}")
+        try:
+            return cls(**{**dict(defaults or {}), **values})
+        except ConfigError as error:
+            if not where:
+                raise
+            raise ConfigError(f"{where}: {error}") from None
+
+    def to_dict(self) -> dict[str, Any]:
+        """Field -> value, nested configs as dicts (JSON-friendly apart from a RandomState seed)."""
+        out = {}
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            out[field.name] = value.to_dict() if isinstance(value, Config) else value
+        return out
+
+    @classmethod
+    def describe(cls, defaults: Mapping[str, Any] | None = None) -> list[dict[str, str]]:
+        """One row per keyword: name, type, default, unit, allowed, doc (for tables and `--help`)."""
+        hints = typing.get_type_hints(cls)
+        defaults = dict(defaults or {})
+        rows = []
+        for field in dataclasses.fields(cls):
+            spec = _spec(field)
+            default = defaults.get(field.name, field.default)
+            allowed = []
+            if spec.choices is not None:
+                allowed.append("one of " + ", ".join(repr(c) for c in spec.choices))
+            if spec.bounds_text():
+                allowed.append(spec.bounds_text())
+            if spec.length is not None:
+                allowed.append(f"{spec.length} elements")
+            if spec.keys is not None:
+                allowed.append("keys " + ", ".join(spec.keys))
+            tp = hints[field.name]
+            if isinstance(tp, type) and issubclass(tp, Config):
+                allowed.append(f"keywords of {tp.__name__}")
+            rows.append({"name": field.name, "type": _type_name(tp), "default": _default_text(default),
+                         "unit": spec.unit, "allowed": "; ".join(allowed), "doc": spec.doc})
+        return rows
+
+    @classmethod
+    def markdown(cls, defaults: Mapping[str, Any] | None = None) -> str:
+        """The `describe()` rows as a markdown table."""
+        lines = ["| keyword | type | default | unit | allowed | what |", "| --- | --- | --- | --- | --- | --- |"]
+        for row in cls.describe(defaults):
+            cells = [f"`{row['name']}`", row["type"], f"`{row['default']}`", row["unit"], row["allowed"], row["doc"]]
+            lines.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
+        return "\n".join(lines)
+
+
+def _default_text(value: Any) -> str:
+    if isinstance(value, Config):
+        return type(value).__name__ + "()"
+    if isinstance(value, float):
+        return f"{value:g}"
+    return repr(value)
