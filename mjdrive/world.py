@@ -17,7 +17,7 @@ from mjdrive import XML_DIR
 from mjdrive.roads import Marking, RoadMap
 from mjdrive.vehicle import add_vehicle
 
-PHYSICS_TIMESTEP = 0.002  # [s]
+PHYSICS_TIMESTEP = 0.005  # [s] chosen by measurement: results/physics_dt.md
 ROAD_Z = 0.004  # [m] height of the road surface mesh above the ground plane
 MARKING_Z = 0.008  # [m] height of the marking meshes
 MARKING_WIDTH = 0.15  # [m]

@@ -1,0 +1,382 @@
+"""Choosing the physics step: the car's physics, collisions with every road-user kind, solver stability
+and throughput at several physics timesteps, in one run (progress on stderr, a markdown report on stdout
+or --out).
+
+    python tools/physics_dt.py --dts 0.002 0.003 0.004 0.005 0.008 0.01 --out results/physics_dt_raw.md
+
+Sections (--sections, all by default):
+  vehicle     for both cars, control at 20 Hz (the nearest whole number of steps): full braking from 50 km/h
+              against v^2 / (2 mu g), circle radius at steer 0.25 / 0.5 / 1.0 against wheelbase / tan(delta),
+              creep of a parked car over 10 s (brake on, all commands zero), 0-50 km/h at full throttle.
+  collision   the sedan against one road user of every kind (a mocap box written every 0.02 s, as traffic
+              does), head-on and crossing, at 5 / 10 / 15 m/s closing speed (the road user at its top speed,
+              capped by the closing speed; the ego makes up the rest): whether the collision sensor (sampled
+              every 0.02 s, as the tasks do) reports the contact, how long after the footprints first overlap,
+              and how deep the boxes were at that moment (a contact missed or reported late would be
+              tunnelling).
+  stability   roundabout/d210 with the privileged autopilot for --stability-steps physics steps (new episode
+              whenever one ends): physics errors (NaN, warnings) counted.
+  throughput  raw `mj_step` of the d210 and the straight-route models, and the env (features) on
+              waypoints/straight and roundabout/d210, every timestep interleaved in rounds (best round kept),
+              as simulated seconds per wall second and as ratios to the 2 ms figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import platform
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from mjdrive import world  # noqa: E402
+from mjdrive.sensors import CollisionSensor  # noqa: E402
+from mjdrive.traffic import ROAD_USER_TYPES, TrafficConfig, overlapping_pairs, slots  # noqa: E402
+from mjdrive.vehicle import VEHICLES, Vehicle  # noqa: E402
+
+KMH = 1 / 3.6  # [m/s] per km/h
+CONTROL_DT = 0.05  # [s] 20 Hz commands in the vehicle section
+CHUNK = TrafficConfig().substep  # [s] mocap write and contact sample period of the tasks
+STEERS = (0.25, 0.5, 1.0)
+CLOSING = (5.0, 10.0, 15.0)  # [m/s]
+
+
+def log(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def substeps(dt: float, period: float) -> int:
+    """Physics steps per `period` [s] (the nearest whole number)."""
+    return max(1, int(round(period / dt)))
+
+
+# --- vehicle ------------------------------------------------------------------------------------------
+
+
+def car_model(name: str, dt: float) -> tuple[mujoco.MjModel, Vehicle]:
+    model = world.build(None, vehicle=name, timestep=dt)
+    return model, Vehicle(model, model_name=name)
+
+
+def drive(model, data, veh: Vehicle, policy, seconds: float, nsub: int, each=None, until=None) -> float:
+    """Commands from `policy(data)` every nsub physics steps for `seconds`; returns the time driven [s]."""
+    t, period = 0.0, nsub * model.opt.timestep
+    while t < seconds - 1e-9:
+        veh.apply(data, *policy(data))
+        mujoco.mj_step(model, data, nsub)
+        t += period
+        if each is not None:
+            each(t, data)
+        if until is not None and until(data):
+            break
+    return t
+
+
+def vehicle_figures(name: str, dt: float) -> dict[str, float]:
+    model, veh = car_model(name, dt)
+    p = veh.params
+    nsub = substeps(dt, CONTROL_DT)
+    g = -model.opt.gravity[2]
+    out: dict[str, float] = {"control_dt": nsub * dt}
+    # full braking from 50 km/h
+    data = mujoco.MjData(model)
+    veh.reset(data, 0.0, 0.0, 0.0, 50 * KMH)
+    drive(model, data, veh, lambda d: (0.0, 0.0, 1.0), 4.0, nsub)
+    theory = (50 * KMH) ** 2 / (2 * p.tire_mu * g)
+    out["brake_m"] = veh.pose(data)[0]
+    out["brake_err"] = out["brake_m"] / theory - 1
+    # circle radius at ~3 m/s (rear-axle centre, steady state after 4 s)
+    for steer in STEERS:
+        data = mujoco.MjData(model)
+        veh.reset(data, 0.0, 0.0, 0.0, 3.0)
+        points: list[tuple[float, float]] = []
+
+        def rear_axle(t, d, points=points):
+            if t > 4.0:
+                x, y, yaw = veh.pose(d)
+                points.append((x - 0.5 * p.wheelbase * math.cos(yaw), y - 0.5 * p.wheelbase * math.sin(yaw)))
+
+        drive(model, data, veh, lambda d, s=steer: (min(1.0, max(0.0, 0.5 * (3.0 - veh.speed(d)))), s, 0.0), 16.0,
+              nsub, rear_axle)
+        xy = np.array(points)
+        cx, cy, c = np.linalg.lstsq(np.c_[2 * xy, np.ones(len(xy))], (xy**2).sum(1), rcond=None)[0]
+        out[f"circle_err_{steer}"] = math.sqrt(c + cx**2 + cy**2) / (p.wheelbase / math.tan(steer * p.max_steer)) - 1
+    # parked 10 s
+    for brake in (1.0, 0.0):
+        data = mujoco.MjData(model)
+        veh.reset(data, 3.0, -2.0, 0.7)
+        start = data.xpos[veh.body_id].copy()
+        drive(model, data, veh, lambda d, b=brake: (0.0, 0.0, b), 10.0, nsub)
+        out[f"creep_mm_{brake:.0f}"] = 1e3 * float(np.linalg.norm(data.xpos[veh.body_id] - start))
+    # 0-50 km/h
+    data = mujoco.MjData(model)
+    veh.reset(data, 0.0, 0.0, 0.0)
+    out["t_0_50"] = drive(model, data, veh, lambda d: (1.0, 0.0, 0.0), 15.0, nsub,
+                          until=lambda d: veh.speed(d) >= 50 * KMH)
+    out["physics_ok"] = float(np.isfinite(data.qpos).all())
+    return out
+
+
+def vehicle_section(dts: list[float]) -> list[str]:
+    lines = ["## Vehicle physics (tests/test_vehicle.py's checks)", "",
+             "| car | dt [ms] | control [ms] | braking 50-0 km/h [m] | vs v²/2μg | circle radius vs L/tan δ, steer "
+             + " / ".join(str(s) for s in STEERS) + " | parked 10 s, brake / no command [mm] | 0-50 km/h [s] |",
+             "| --- | ---: | ---: | ---: | ---: | --- | --- | ---: |"]
+    for name in sorted(VEHICLES):
+        for dt in dts:
+            start = time.perf_counter()
+            r = vehicle_figures(name, dt)
+            log(f"vehicle {name} dt={dt * 1e3:g} ms: {time.perf_counter() - start:.1f} s")
+            circles = " / ".join(f"{100 * r[f'circle_err_{s}']:+.2f}%" for s in STEERS)
+            lines.append(f"| {name} | {dt * 1e3:g} | {r['control_dt'] * 1e3:g} | {r['brake_m']:.2f} "
+                         f"| {100 * r['brake_err']:+.1f}% | {circles} | {r['creep_mm_1']:.2f} / {r['creep_mm_0']:.2f} "
+                         f"| {r['t_0_50']:.2f} |")
+    return lines
+
+
+# --- collisions -----------------------------------------------------------------------------------------
+
+
+def footprint_overlap_time(ego_xy0, ego_v, user_xy0, user_yaw, user_v, user_half, ego_half, horizon: float) -> float:
+    """First time [s] (1 ms resolution) at which the two footprints, moving on straight lines at constant
+    velocity (the ego heading +x), overlap; inf if never within `horizon`."""
+    for t in np.arange(0.0, horizon, 0.001):
+        poses = np.array([[ego_xy0[0] + ego_v[0] * t, ego_xy0[1] + ego_v[1] * t, 0.0],
+                          [user_xy0[0] + user_v[0] * t, user_xy0[1] + user_v[1] * t, user_yaw]])
+        if len(overlapping_pairs(poses, np.array([ego_half, user_half]))):
+            return float(t)
+    return math.inf
+
+
+def impact(kind: str, geometry: str, closing: float, dt: float) -> dict[str, float]:
+    """One impact of the sedan with a road user of `kind`; see the module docstring."""
+    model = world.build(None, vehicle="sedan", traffic=slots([kind]), timestep=dt)
+    data = mujoco.MjData(model)
+    veh = Vehicle(model, model_name="sedan")
+    sensor = CollisionSensor(model)
+    mocap = int(model.body_mocapid[model.body("traffic_0").id])
+    user = ROAD_USER_TYPES[kind]
+    top = user.speed[1]  # [m/s]
+    p = veh.params
+    ego_half = (p.length / 2, p.width / 2)
+    lead = 1.0  # [s] before the footprints would meet
+    if geometry == "head-on":
+        v_user = min(top, closing)
+        v_ego = closing - v_user
+        user_yaw, user_vel = math.pi, np.array([-v_user, 0.0])
+        gap = p.length / 2 + user.half_size[0] + closing * lead
+        user_xy0 = np.array([gap, 0.0])
+    else:  # crossing from the right, perpendicular, aimed at the ego's centre
+        v_user = min(top, closing)
+        v_ego = math.sqrt(max(closing**2 - v_user**2, 0.0))
+        user_yaw, user_vel = math.pi / 2, np.array([0.0, v_user])
+        t_meet = lead + (p.width / 2 + user.half_size[0]) / max(v_user, 1e-9)
+        user_xy0 = np.array([v_ego * t_meet, -v_user * t_meet])
+    veh.reset(data, 0.0, 0.0, 0.0, v_ego)
+    horizon = 3.0
+    t_overlap = footprint_overlap_time((0.0, 0.0), (v_ego, 0.0), user_xy0, user_yaw, user_vel, user.half_size[:2],
+                                       ego_half, horizon)
+    quat = [math.cos(user_yaw / 2), 0.0, 0.0, math.sin(user_yaw / 2)]
+    nsub = substeps(dt, CHUNK)
+    chunk = nsub * dt
+    t, detected, depth = 0.0, math.inf, 0.0
+    while t < horizon:
+        xy = user_xy0 + user_vel * t  # poses written per chunk, as traffic does
+        data.mocap_pos[mocap] = (xy[0], xy[1], 0.0)
+        data.mocap_quat[mocap] = quat
+        veh.apply(data, 0.0, 0.0, 0.0)  # coasting: the ego keeps its speed
+        mujoco.mj_step(model, data, nsub)
+        t += chunk
+        sensor.sample(data)
+        if sensor.collided(data):
+            detected = t
+            ego_hits = [c.dist for c in data.contact[: data.ncon]] if data.ncon else [0.0]
+            depth = -min(ego_hits)
+            break
+    return {"v_user": v_user, "v_ego": v_ego, "overlap": t_overlap, "detected": detected,
+            "delay": detected - t_overlap, "depth": depth, "finite": float(np.isfinite(data.qpos).all())}
+
+
+def collision_section(dts: list[float]) -> list[str]:
+    lines = ["## Collisions with every road-user kind", "",
+             "Delay: from the first overlap of the footprints (straight-line motion, 1 ms resolution) to the "
+             f"first contact sample that reports it (samples every {CHUNK * 1e3:g} ms, the road user's pose "
+             f"written every {CHUNK * 1e3:g} ms, so up to two periods pass before a sample can see an overlap "
+             "that began just after a write: 'detected' means reported within two periods and one physics step). "
+             "Depth: the deepest contact penetration at that sample.", "",
+             "| dt [ms] | kind | geometry | closing [m/s] | road user / ego [m/s] | detected | delay [ms] "
+             "| depth [mm] |", "| ---: | --- | --- | ---: | --- | --- | ---: | ---: |"]
+    worst: dict[float, tuple[int, int, float, float]] = {}
+    for dt in dts:
+        start = time.perf_counter()
+        missed, total, max_delay, max_depth = 0, 0, 0.0, 0.0
+        for kind in ROAD_USER_TYPES:
+            for geometry in ("head-on", "crossing"):
+                for closing in CLOSING:
+                    r = impact(kind, geometry, closing, dt)
+                    ok = math.isfinite(r["detected"]) and r["delay"] <= 2 * CHUNK + dt + 1e-9
+                    missed += not ok
+                    total += 1
+                    if math.isfinite(r["delay"]):
+                        max_delay, max_depth = max(max_delay, r["delay"]), max(max_depth, r["depth"])
+                    lines.append(f"| {dt * 1e3:g} | {kind} | {geometry} | {closing:g} | {r['v_user']:.2f} / "
+                                 f"{r['v_ego']:.2f} | {'yes' if ok else 'NO'} | {1e3 * r['delay']:.0f} "
+                                 f"| {1e3 * r['depth']:.0f} |")
+        worst[dt] = (missed, total, max_delay, max_depth)
+        log(f"collision dt={dt * 1e3:g} ms: {time.perf_counter() - start:.1f} s, {missed} of {total} missed or late")
+    lines += ["", "| dt [ms] | impacts | missed or late | worst delay [ms] | deepest [mm] |",
+              "| ---: | ---: | ---: | ---: | ---: |"]
+    for dt, (missed, total, max_delay, max_depth) in worst.items():
+        lines.append(f"| {dt * 1e3:g} | {total} | {missed} | {1e3 * max_delay:.0f} | {1e3 * max_depth:.0f} |")
+    return lines
+
+
+# --- stability and throughput (tasks) -----------------------------------------------------------------
+
+
+def load(domain: str, task: str, dt: float, **task_kwargs):
+    """suite.load with the physics step `dt` [s]."""
+    from mjdrive import suite
+
+    return suite.load(domain, task, {"random": 0, "physics_dt": dt, **task_kwargs})
+
+
+def stability(dt: float, physics_steps: int) -> dict[str, float]:
+    from mjdrive.control.autopilot import Autopilot
+
+    env = load("roundabout", "d210", dt)
+    n_sub = env._n_sub_steps
+    pilot = Autopilot(env.task, n_sub * dt)
+    steps, errors, episodes, collisions = 0, 0, 0, 0
+    env.reset()
+    pilot.reset()
+    while steps < physics_steps:
+        timestep = env.step(pilot(env.physics))
+        steps += n_sub
+        if timestep.last():
+            episodes += 1
+            errors += env.task.info["physics_error"] is not None
+            collisions += bool(env.task.info["collision"])
+            env.reset()
+            pilot.reset()
+    warnings = int(env.physics.data.warning.number.sum())
+    return {"steps": steps, "episodes": episodes, "errors": errors, "collisions": collisions, "warnings": warnings}
+
+
+def stability_section(dts: list[float], physics_steps: int) -> list[str]:
+    lines = ["## Solver stability: roundabout/d210, privileged autopilot", "",
+             "| dt [ms] | physics steps | simulated [s] | episodes ended | physics errors | MuJoCo warnings "
+             "| collisions |", "| ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for dt in dts:
+        start = time.perf_counter()
+        r = stability(dt, physics_steps)
+        log(f"stability dt={dt * 1e3:g} ms: {time.perf_counter() - start:.1f} s, {r}")
+        lines.append(f"| {dt * 1e3:g} | {r['steps']:,} | {r['steps'] * dt:,.0f} | {r['episodes']} | {r['errors']} "
+                     f"| {r['warnings']} | {r['collisions']} |")
+    return lines
+
+
+def _rate(step: Callable[[], None], seconds: float) -> float:
+    step()
+    calls, start = 0, time.perf_counter()
+    while True:
+        for _ in range(5):
+            step()
+        calls += 5
+        elapsed = time.perf_counter() - start
+        if elapsed >= seconds:
+            return calls / elapsed
+
+
+def throughput_section(dts: list[float], seconds: float, rounds: int) -> list[str]:
+    hold = np.array([0.0, 0.0, 1.0])
+    cruise = np.array([0.25, 0.0, 0.0])
+    cases: dict[tuple[str, float], Callable[[], None]] = {}
+    sim_per_call: dict[tuple[str, float], float] = {}
+    for dt in dts:
+        for name, (domain, task, action) in {"waypoints/straight": ("waypoints", "straight", cruise),
+                                              "roundabout/d210": ("roundabout", "d210", hold)}.items():
+            env = load(domain, task, dt)
+            env.reset()
+            n_sub = env._n_sub_steps
+            model = env.physics.model.ptr
+            data = mujoco.MjData(model)
+            src = env.physics.data
+            for field in ("qpos", "qvel", "ctrl", "mocap_pos", "mocap_quat"):
+                getattr(data, field)[:] = getattr(src, field)
+            qpos0 = data.qpos.copy()
+
+            def raw(model=model, data=data, n=n_sub, qpos0=qpos0):
+                mujoco.mj_step(model, data, n)
+                if data.time > 15.0:
+                    mujoco.mj_resetData(model, data)
+                    data.qpos[:] = qpos0
+
+            def step(env=env, action=action):
+                if env.step(action).last():
+                    env.reset()
+
+            control_dt = n_sub * dt
+            cases[(f"{name} raw", dt)], sim_per_call[(f"{name} raw", dt)] = raw, control_dt
+            cases[(f"{name} env", dt)], sim_per_call[(f"{name} env", dt)] = step, control_dt
+    best = {key: 0.0 for key in cases}
+    for r in range(rounds):
+        for key, fn in cases.items():
+            best[key] = max(best[key], _rate(fn, seconds / rounds) * sim_per_call[key])
+        log(f"throughput round {r + 1}/{rounds}")
+    base = min(dts, key=lambda d: abs(d - 0.002))
+    lines = ["## Throughput (simulated seconds per wall second, best of "
+             f"{rounds} interleaved rounds)", "",
+             "| case | " + " | ".join(f"{dt * 1e3:g} ms" for dt in dts) + f" | best / {base * 1e3:g} ms |",
+             "| --- | " + " | ".join("---:" for _ in dts) + " | --- |"]
+    for case in dict.fromkeys(k for k, _ in cases):
+        values = [best[(case, dt)] for dt in dts]
+        ratios = " / ".join(f"{best[(case, dt)] / best[(case, base)]:.2f}x" for dt in dts)
+        lines.append(f"| {case} | " + " | ".join(f"{v:.0f}" for v in values) + f" | {ratios} |")
+    for name in ("waypoints/straight", "roundabout/d210"):
+        shares = [best[(f"{name} env", dt)] / best[(f"{name} raw", dt)] for dt in dts]
+        lines.append(f"| {name} env/raw | " + " | ".join(f"{r:.0%}" for r in shares) + " | |")
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--dts", nargs="+", type=float, default=[0.002, 0.003, 0.004, 0.005, 0.008, 0.01])
+    parser.add_argument("--sections", nargs="+", default=["vehicle", "collision", "stability", "throughput"],
+                        choices=["vehicle", "collision", "stability", "throughput"])
+    parser.add_argument("--stability-steps", type=int, default=100_000)
+    parser.add_argument("--seconds", type=float, default=10.0, help="throughput: wall seconds per case")
+    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--out", default=None)
+    args = parser.parse_args(argv)
+    start = time.perf_counter()
+    lines = [f"# Physics step: measurements ({platform.machine()}, mujoco {mujoco.__version__})", "",
+             "`python tools/physics_dt.py " + " ".join(sys.argv[1:] if argv is None else argv) + "`", ""]
+    task_dts = [dt for dt in args.dts if abs(CONTROL_DT / dt - round(CONTROL_DT / dt)) < 1e-6
+                and abs(CHUNK / dt - round(CHUNK / dt)) < 1e-6]  # the tasks need whole substeps
+    for section in args.sections:
+        if section == "vehicle":
+            lines += vehicle_section(args.dts) + [""]
+        elif section == "collision":
+            lines += collision_section(args.dts) + [""]
+        elif section == "stability":
+            lines += stability_section(task_dts, args.stability_steps) + [""]
+        elif section == "throughput":
+            lines += throughput_section(task_dts, args.seconds, args.rounds) + [""]
+    lines.append(f"Wall time {time.perf_counter() - start:.0f} s.")
+    text = "\n".join(lines) + "\n"
+    if args.out:
+        Path(args.out).write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
