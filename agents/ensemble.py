@@ -67,8 +67,16 @@ def ensemble_agent(payload: dict, path: str | Path) -> EnsembleAgent:
     """The acting ensemble of the ensemble checkpoint at `path` (its loaded `payload`)."""
     from agents.evaluate import agent_from_payload
 
+    state = payload["state"]
+    if state.get("rule") not in RULES:
+        raise CheckpointError(f"{path}: an ensemble with the rule {state.get('rule')!r}; valid: {', '.join(RULES)}")
+    entries = state.get("members")
+    if not isinstance(entries, list) or not entries or not all(
+            isinstance(m, dict) and isinstance(m.get("path"), str) and isinstance(m.get("sha256"), str)
+            for m in entries):
+        raise CheckpointError(f"{path}: an ensemble's 'members' must be a list of {{'path', 'sha256'}} entries")
     members = []
-    for member in payload["state"]["members"]:
+    for member in entries:
         member_path = Path(path).parent / member["path"]
         if not member_path.is_file():
             raise CheckpointError(f"{path}: its member {member['path']} is missing (looked for {member_path})")

@@ -32,14 +32,24 @@ def agent_from_payload(payload: dict, name: str) -> Any:
     """The acting agent of a loaded checkpoint payload (`name` for errors)."""
     config = payload["config"]
     domain, task = split_task(config["task"])
-    env = make_env(domain, task, actions=config.get("actions", "continuous"), **config.get("task_kwargs", {}))
+    task_kwargs = config.get("task_kwargs", {})
+    if not isinstance(task_kwargs, dict):
+        raise CheckpointError(f"{name}: its config's task_kwargs is a {type(task_kwargs).__name__}, not a dict")
+    try:
+        env = make_env(domain, task, actions=config.get("actions", "continuous"), **task_kwargs)
+    except (KeyError, TypeError) as error:
+        raise CheckpointError(f"{name}: its config cannot build the env {config['task']} ({error})") from error
     try:
         agent = agent_class(payload["algo"])(config, env.observation_space, env.action_space)
     except (KeyError, TypeError) as error:
         raise CheckpointError(f"{name}: its config cannot build a {payload['algo']} agent ({error})") from error
     finally:
         env.close()
-    agent.load_state_dict(payload["state"], inference_only=True)
+    try:
+        agent.load_state_dict(payload["state"], inference_only=True)
+    except (KeyError, TypeError, AttributeError) as error:  # a state without the networks this algo needs
+        raise CheckpointError(f"{name}: its state cannot load into a {payload['algo']} agent "
+                              f"({type(error).__name__}: {error})") from error
     return agent
 
 

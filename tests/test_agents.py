@@ -105,7 +105,7 @@ def test_corrupt_wrong_and_mismatched_checkpoints_raise_clear_errors(tmp_path):
         load_checkpoint(other)
     with pytest.raises(CheckpointError, match="holds a 'sac' agent, expected 'dqn'"):
         load_checkpoint(path, algo="dqn")
-    payload = torch.load(path, weights_only=False)
+    payload = torch.load(path, weights_only=True)
     payload["config"]["algorithm"]["hidden"] = [64, 64]  # the config no longer matches the weights
     torch.save(payload, tmp_path / "mismatch.pt")
     with pytest.raises(CheckpointError, match="shape mismatches"):
