@@ -87,7 +87,7 @@ def _check_bounds(value: float, spec: Spec) -> None:
     bad = ((spec.ge is not None and not value >= spec.ge) or (spec.gt is not None and not value > spec.gt)
            or (spec.le is not None and not value <= spec.le) or (spec.lt is not None and not value < spec.lt))
     if bad:
-        raise _Invalid(f"must be {spec.bounds_text()}")
+        raise _Invalid(f"must be {spec.bounds_text()}" + (f" [{spec.unit}]" if spec.unit else ""))
 
 
 def _convert(value: Any, tp: Any, spec: Spec) -> Any:

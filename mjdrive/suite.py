@@ -7,10 +7,13 @@
 from __future__ import annotations
 
 import collections
+import difflib
+from collections.abc import Mapping
 from typing import Any
 
+from mjdrive.config import ConfigError
 from mjdrive.tasks import roundabout, waypoints
-from mjdrive.tasks.base import DrivingEnvironment
+from mjdrive.tasks.base import DrivingConfig, DrivingEnvironment
 
 _DOMAINS = {"roundabout": roundabout, "waypoints": waypoints}
 
@@ -43,24 +46,43 @@ def tasks_with_tag(tag: str) -> tuple[tuple[str, str], ...]:
     return _get_tasks(tag)
 
 
-def load(
-    domain_name: str,
-    task_name: str,
-    task_kwargs: dict[str, Any] | None = None,
-    environment_kwargs: dict[str, Any] | None = None,
-) -> DrivingEnvironment:
-    """Build a task's environment. Unknown names raise ValueError listing the valid ones.
-
-    task_kwargs go to the task constructor (e.g. `random` seed, `observation`, `buildings`, `vehicle`,
-    `time_limit`); environment_kwargs to the dm_control Environment (e.g. `control_timestep`).
-    """
+def _task_fn(domain_name: str, task_name: str):
     if domain_name not in _DOMAINS:
-        raise ValueError(f"unknown domain {domain_name!r}; valid domains: {', '.join(sorted(_DOMAINS))}")
+        raise ConfigError(f"unknown domain {domain_name!r}; valid domains: {', '.join(sorted(_DOMAINS))}")
     domain = _DOMAINS[domain_name]
     if task_name not in domain.SUITE:
         valid = ", ".join(f"{domain_name}/{t}" for t in domain.SUITE)
-        raise ValueError(f"unknown task {domain_name}/{task_name}; valid tasks: {valid}")
+        close = difflib.get_close_matches(task_name, list(domain.SUITE), n=1)
+        hint = f" (did you mean {domain_name}/{close[0]}?)" if close else ""
+        raise ConfigError(f"unknown task {domain_name}/{task_name}{hint}; valid tasks: {valid}")
+    return domain.SUITE[task_name]
+
+
+def task_config(domain_name: str, task_name: str) -> tuple[type[DrivingConfig], dict[str, Any]]:
+    """The task's config class and its per-task defaults: `cls.from_dict(kwargs, defaults)` validates
+    keywords, `cls.markdown(defaults)` is its table."""
+    task_fn = _task_fn(domain_name, task_name)
+    return task_fn.config_class, dict(task_fn.config_defaults)
+
+
+def load(
+    domain_name: str,
+    task_name: str,
+    task_kwargs: Mapping[str, Any] | None = None,
+    environment_kwargs: Mapping[str, Any] | None = None,
+) -> DrivingEnvironment:
+    """Build a task's environment. Unknown names and bad keywords raise `ConfigError` (a ValueError) that
+    names what is wrong and lists what is allowed.
+
+    task_kwargs are validated into the task's config (`mjdrive list --kwargs DOMAIN/TASK` lists them: e.g.
+    `random` seed, `observation`, `vehicle`, `time_limit` [s], `physics_dt` [s]); environment_kwargs go to the
+    dm_control Environment (`control_timestep` [s], `flat_observation`).
+    """
+    task_fn = _task_fn(domain_name, task_name)
+    for name, kwargs in (("task_kwargs", task_kwargs), ("environment_kwargs", environment_kwargs)):
+        if kwargs is not None and not isinstance(kwargs, Mapping):
+            raise ConfigError(f"{name} must be a mapping of keyword -> value, got {type(kwargs).__name__}")
     task_kwargs = dict(task_kwargs or {})
-    if environment_kwargs is not None:
-        task_kwargs["environment_kwargs"] = environment_kwargs
-    return domain.SUITE[task_name](**task_kwargs)
+    if "environment_kwargs" in task_kwargs:
+        raise ConfigError("pass environment_kwargs as load()'s own argument, not inside task_kwargs")
+    return task_fn(environment_kwargs=environment_kwargs, **task_kwargs)

@@ -23,7 +23,7 @@ def test_unknown_names_list_the_valid_ones():
         suite.load("nowhere", "straight")
     with pytest.raises(ValueError, match="valid tags"):
         suite.tasks_with_tag("nope")
-    with pytest.raises(ValueError, match="observation must be one of"):
+    with pytest.raises(ValueError, match="observation='lidar': must be one of 'features', 'camera'"):
         suite.load("waypoints", "straight", {"observation": "lidar"})
 
 

@@ -98,7 +98,7 @@ def test_driving_into_an_obstacle_is_a_collision_from_a_real_contact():
 
     from mjdrive import world
     from mjdrive.tasks.base import DrivingEnvironment, Physics
-    from mjdrive.tasks.waypoints import WaypointTask
+    from mjdrive.tasks.waypoints import WaypointsConfig, WaypointTask
 
     road_map, routes = roads.crafted_routes()
     lane = road_map.lanes[routes["straight"][0]]
@@ -107,7 +107,7 @@ def test_driving_into_an_obstacle_is_a_collision_from_a_real_contact():
     spec.worldbody.add_geom(name="block", type=mujoco.mjtGeom.mjGEOM_BOX, size=[1, 1, 1],
                             pos=[block[0], block[1], 1.0], contype=2, conaffinity=2)
     model = spec.compile()
-    task = WaypointTask(model, road_map, [routes["straight"]], start_noise=(0.0, 0.0), random=0)
+    task = WaypointTask(model, road_map, [routes["straight"]], WaypointsConfig(start_noise=(0.0, 0.0), random=0))
     env = DrivingEnvironment(Physics.from_model(wrapper.MjModel(model)), task, control_timestep=0.1)
     env.reset()
     for _ in range(100):

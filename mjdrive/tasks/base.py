@@ -3,7 +3,7 @@ Environment that turns physics blow-ups into an ended episode instead of an exce
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -14,14 +14,75 @@ from dm_control import mujoco as dm_mujoco
 from dm_control.rl import control
 from dm_env import specs
 
+from mjdrive.config import Config, ConfigError, param
 from mjdrive.roads import RoadMap
 from mjdrive.sensors import CameraRenderer, CollisionSensor, LaneInvasionSensor, footprint
 from mjdrive.vehicle import VEHICLES, Vehicle
+from mjdrive.world import PHYSICS_TIMESTEP
 
 ACTION_NAMES = ("throttle", "steer", "brake")
 ACTION_SPEC = specs.BoundedArray(
     (3,), np.float64, minimum=[0.0, -1.0, 0.0], maximum=[1.0, 1.0, 1.0], name="throttle,steer,brake"
 )
+
+
+OBSERVATIONS = ("features", "camera")
+MAX_SEED = 2**32 - 1  # numpy RandomState seeds are 32-bit
+
+
+@dataclass(frozen=True)
+class DrivingConfig(Config):
+    """Keywords every driving task takes; each domain's config adds its own (see `mjdrive list --kwargs`)."""
+
+    random: int | np.random.RandomState | None = param(
+        None, "seed of the task's random stream (episodes, traffic); None: fresh entropy", ge=0, le=MAX_SEED)
+    observation: str = param("features", "observation set (see the domain's docs)", choices=OBSERVATIONS)
+    vehicle: str = param("sedan", "the ego car", choices=tuple(VEHICLES))
+    time_limit: float = param(60.0, "episode length, then truncation", "s", gt=0.0, le=3600.0)
+    physics_dt: float = param(PHYSICS_TIMESTEP, "MuJoCo time step (the control period must be a multiple)", "s",
+                              ge=0.0005, le=0.01)
+
+
+@dataclass(frozen=True)
+class EnvironmentConfig(Config):
+    """Keywords of the dm_control Environment (`suite.load(..., environment_kwargs=...)`)."""
+
+    control_timestep: float | None = param(None, "period of one env step; None: the task's control rate", "s",
+                                           gt=0.0, le=10.0)
+    flat_observation: bool = param(False, "concatenate the observation dict into one array")
+
+
+def environment_config(environment_kwargs: Mapping[str, Any] | None, physics_dt: float,
+                       default_control_timestep: float, where: str) -> dict[str, Any]:
+    """Validated dm_control Environment keywords with the control period resolved: it must be a whole
+    multiple of the physics step."""
+    config = EnvironmentConfig.from_dict(environment_kwargs, where=f"{where} environment_kwargs")
+    control_timestep = config.control_timestep or default_control_timestep
+    ratio = control_timestep / physics_dt
+    if round(ratio) < 1 or abs(ratio - round(ratio)) > 1e-6 * ratio:
+        raise ConfigError(f"{where}: control_timestep={control_timestep:g} s must be a whole multiple of "
+                          f"physics_dt={physics_dt:g} s")
+    return {"control_timestep": control_timestep, "flat_observation": config.flat_observation}
+
+
+def configured_task(config_class: type[DrivingConfig], **defaults: Any) -> Callable:
+    """Decorator of a registered task function `build(config, environment_kwargs) -> env`: the function the
+    suite calls takes keyword arguments, validates them into `config_class` (with this task's `defaults`)
+    before anything is built, and carries `config_class` and `config_defaults` for `mjdrive list --kwargs`."""
+
+    def decorate(build: Callable[[DrivingConfig, Mapping[str, Any] | None], DrivingEnvironment]) -> Callable:
+        where = f"{build.__module__.rsplit('.', 1)[-1]}/{build.__name__}"
+
+        def task_fn(environment_kwargs: Mapping[str, Any] | None = None, **kwargs: Any) -> DrivingEnvironment:
+            config = config_class.from_dict(kwargs, defaults, where=where)
+            return build(config, environment_kwargs)
+
+        task_fn.__name__, task_fn.__qualname__, task_fn.__doc__ = build.__name__, build.__name__, build.__doc__
+        task_fn.__module__ = build.__module__
+        task_fn.config_class, task_fn.config_defaults = config_class, dict(defaults)
+        return task_fn
+
+    return decorate
 
 
 @dataclass(frozen=True)

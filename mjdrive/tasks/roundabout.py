@@ -51,6 +51,7 @@ from __future__ import annotations
 import collections
 import functools
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from dm_control.mujoco import wrapper
@@ -58,9 +59,18 @@ from dm_control.utils import containers
 from dm_env import specs
 
 from mjdrive import roads, world
+from mjdrive.config import ConfigError, param
 from mjdrive.roads import Lane, RoadMap
 from mjdrive.sensors import wrap_angle
-from mjdrive.tasks.base import DrivingEnvironment, DrivingTask, Physics, RoadUsers
+from mjdrive.tasks.base import (
+    DrivingConfig,
+    DrivingEnvironment,
+    DrivingTask,
+    Physics,
+    RoadUsers,
+    configured_task,
+    environment_config,
+)
 from mjdrive.traffic import KIND_NAMES, EgoState, Traffic, TrafficConfig, counts_to_kinds, slots
 
 SUITE = containers.TaggedTasks()
@@ -68,7 +78,8 @@ SUITE = containers.TaggedTasks()
 CONTROL_TIMESTEP = 0.2  # [s] 5 Hz (§5.1)
 MAX_STEPS = 1100  # (§5.1)
 SPEED_LIMIT_KMH = 30.0  # [km/h] the study's limit: v/10 is at most 3
-OBSERVATIONS = ("features", "camera")
+MAX_ARMS = 8
+MAX_ROAD_USERS = 200
 ROAD_USER_COLUMNS = 9 + len(KIND_NAMES)
 DENSITIES: dict[str, dict[str, int]] = {
     "d120": {"car": 12, "motorcycle": 3, "bicycle": 3, "pedestrian": 4},
@@ -109,71 +120,88 @@ class RouteFrame:
         return self.s0[lo + j] + clamped[rows, j], side[rows, j]
 
 
+@dataclass(frozen=True)
+class RoundaboutConfig(DrivingConfig):
+    """The roundabout tasks' keywords: the episode, the observation, eq. 12's terms, traffic and the map."""
+
+    time_limit: float = param(MAX_STEPS * CONTROL_TIMESTEP, "episode length, then truncation (1100 steps)", "s",
+                              gt=0.0, le=3600.0)
+    exits: tuple[int, ...] = param((1, 2, 3), "exits drawn from, counted after the entry (1: first exit)",
+                                   ge=1, le=MAX_ARMS)
+    entries: tuple[int, ...] | None = param(None, "arms the ego may start from (arm index); None: every arm",
+                                            ge=0, le=MAX_ARMS - 1)
+    destination_offset: float = param(10.0, "destination this far into the exit arm", "m", ge=1.0, le=400.0)
+    start_offset: float = param(0.5, "ego's centre to the end of its approach lane at the start", "m",
+                                ge=0.0, le=20.0)
+    warmup: float = param(5.0, "traffic simulated before the episode starts", "s", ge=0.0, le=120.0)
+    neighbours: int = param(8, "K, road users in the features observation", ge=1, le=64)
+    image_size: int = param(84, "side of the square camera frames", "px", ge=16, le=512)
+    frames: int = param(4, "stacked camera frames", ge=1, le=16)
+    speed_reward: bool = param(True, "eq. 12's R_t3 speed term")
+    collision_penalty: float = param(100.0, "subtracted on a collision (eq. 12's 100)", ge=0.0, le=1e6)
+    off_route: float | None = param(5.0, "distance from the route's centre line that ends the episode; "
+                                    "None: never (the study)", "m", gt=0.0, le=100.0)
+    off_route_penalty: float = param(0.0, "subtracted when the episode ends off the route", ge=0.0, le=1e6)
+    destination_frame: str = param("world", "frame of the destination vector (world: the study)",
+                                   choices=("world", "ego"))
+    camera_ego: bool = param(False, "camera observation also carries the features' ego vector")
+    off_road_ends: bool = param(False, "end the episode once the whole footprint is off the road")
+    camera: str = param("front", "ego camera of the camera observation (90 or 120 deg)",
+                        choices=("front", "front_wide"))
+    road_users: dict[str, int] | None = param(None, "road users by kind, overriding the level's counts",
+                                              ge=0, le=100, keys=KIND_NAMES)
+    traffic_config: TrafficConfig = param(TrafficConfig(), "traffic behaviour constants (a dict of its keywords)")
+    radius: float = param(14.0, "radius of the ring's middle", "m", ge=6.0, le=100.0)
+    lanes: int = param(2, "ring lanes", ge=1, le=4)
+    arms: int = param(4, "two-way arms", ge=3, le=MAX_ARMS)
+    arm_length: float = param(50.0, "length of each arm", "m", ge=20.0, le=500.0)
+    lane_width: float = param(3.5, "lane width", "m", ge=2.5, le=5.0)
+    crosswalk_offset: float = param(6.0, "crosswalk this far past the arm's start", "m", ge=1.0, le=400.0)
+
+    def check(self) -> None:
+        if any(e > self.arms for e in self.exits):
+            raise ConfigError(f"exits={self.exits}: must be in 1..{self.arms} (arms={self.arms})")
+        if self.entries is not None and any(e >= self.arms for e in self.entries):
+            raise ConfigError(f"entries={self.entries}: arms are numbered 0..{self.arms - 1} (arms={self.arms})")
+        if self.radius - self.lanes * self.lane_width / 2 < 3.0:
+            raise ConfigError(f"radius={self.radius:g} with lanes={self.lanes} of lane_width={self.lane_width:g} m "
+                              "leaves an island under 3 m: raise radius or lower lanes/lane_width")
+        for name in ("destination_offset", "crosswalk_offset"):
+            if getattr(self, name) >= self.arm_length - 2.0:
+                raise ConfigError(f"{name}={getattr(self, name):g} m must lie inside the arm "
+                                  f"(< arm_length - 2 = {self.arm_length - 2:g} m)")
+        if sum((self.road_users or {}).values()) > MAX_ROAD_USERS:
+            raise ConfigError(f"road_users={self.road_users}: at most {MAX_ROAD_USERS} in all")
+
+
 class RoundaboutTask(DrivingTask):
     """Enter the roundabout from a yield line and reach the destination on a chosen exit (eq. 12 reward)."""
 
-    def __init__(
-        self,
-        model,
-        road_map: RoadMap,
-        kinds: list[str],
-        observation: str = "features",
-        vehicle: str = "sedan",
-        exits: tuple[int, ...] = (1, 2, 3),
-        entries: tuple[int, ...] | None = None,
-        destination_offset: float = 10.0,  # [m] into the exit arm
-        start_offset: float = 0.5,  # [m] from the ego's centre to the end of its approach lane
-        warmup: float = 5.0,  # [s] of traffic before the episode starts
-        neighbours: int = 8,  # K, road users in the "features" observation
-        image_size: int = 84,  # [px]
-        frames: int = 4,
-        speed_reward: bool = True,  # R_t3 (the paper's sum leaves it out; the spec keeps it)
-        collision_penalty: float = 100.0,  # eq. 12's R_t1 = -100 on collision
-        off_route: float | None = 5.0,  # [m] from the route's centre line that ends the episode; None: never
-        off_route_penalty: float = 0.0,  # subtracted when the episode ends off the route (the study has none)
-        destination_frame: str = "world",  # "world" (§4.2) or "ego": the destination vector in the car's frame
-        camera_ego: bool = False,  # "camera" observation: add the features' ego vector (not in the study)
-        off_road_ends: bool = False,  # end the episode once the whole footprint is off the road (not in the study)
-        camera: str = "front",  # the ego camera of the "camera" observation: "front" (90 deg) or "front_wide"
-        traffic_config: TrafficConfig | None = None,
-        random=None,
-    ):
-        if observation not in OBSERVATIONS:
-            raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
-        super().__init__(model, road_map, vehicle, random)
-        self.observation = observation
+    def __init__(self, model, road_map: RoadMap, kinds: list[str], config: RoundaboutConfig):
+        super().__init__(model, road_map, config.vehicle, config.random)
+        self.config = config
+        self.observation = config.observation
         self.routes = roads.roundabout_routes(road_map)
         self.arms = sorted({a for a, _ in self.routes})
-        n_arms = len(self.arms)
-        if not exits or any(not 1 <= e <= n_arms for e in exits):
-            raise ValueError(f"exits must be in 1..{n_arms} (1 = first exit after the entry), got {exits}")
-        self.exits = tuple(exits)
-        self.entries = tuple(self.arms if entries is None else entries)
-        self.destination_offset = destination_offset
-        self.start_offset = start_offset
-        self.warmup = warmup
-        self.neighbours = neighbours
-        self.image_size = image_size
-        self.frames = frames
-        self.speed_reward = speed_reward
-        if collision_penalty < 0:
-            raise ValueError(f"collision_penalty is subtracted on a collision; give it >= 0, got {collision_penalty}")
-        self.collision_penalty = float(collision_penalty)
-        if off_route is not None and off_route <= 0:
-            raise ValueError(f"off_route must be a positive distance [m] or None, got {off_route}")
-        self.off_route = off_route
-        self.off_route_penalty = float(off_route_penalty)
-        if destination_frame not in ("world", "ego"):
-            raise ValueError(f"destination_frame must be 'world' or 'ego', got {destination_frame!r}")
-        self.destination_frame = destination_frame
-        self.camera_ego = bool(camera_ego)
-        self.off_road_ends = bool(off_road_ends)
-        ego_cameras = [model.camera(i).name.removeprefix("ego/") for i in range(model.ncam)
-                       if model.camera(i).name.startswith("ego/")]
-        if camera not in ego_cameras:
-            raise ValueError(f"camera must be one of the ego's cameras {ego_cameras}, got {camera!r}")
-        self.camera = f"ego/{camera}"
-        self.traffic = Traffic(road_map, kinds, traffic_config)
+        self.exits = config.exits
+        self.entries = tuple(self.arms if config.entries is None else config.entries)
+        self.destination_offset = config.destination_offset  # [m]
+        self.start_offset = config.start_offset  # [m]
+        self.warmup = config.warmup  # [s]
+        self.neighbours = config.neighbours
+        self.image_size = config.image_size  # [px]
+        self.frames = config.frames
+        self.speed_reward = config.speed_reward
+        self.collision_penalty = config.collision_penalty
+        self.off_route = config.off_route  # [m]
+        self.off_route_penalty = config.off_route_penalty
+        self.destination_frame = config.destination_frame
+        self.camera_ego = config.camera_ego
+        self.off_road_ends = config.off_road_ends
+        self.camera = f"ego/{config.camera}"
+        if self.camera not in [model.camera(i).name for i in range(model.ncam)]:
+            raise ConfigError(f"camera={config.camera!r}: the ego car has no such camera")
+        self.traffic = Traffic(road_map, kinds, config.traffic_config)
         self.traffic.bind(model)
         self._kind_onehot = np.eye(len(KIND_NAMES), dtype=np.float32)[self.traffic.kind_id]
         self._lengths = 2 * self.traffic.half_size[:, :2]
@@ -398,37 +426,36 @@ class RoundaboutTask(DrivingTask):
 def _road_map(radius: float, lanes: int, arms: int, arm_length: float, lane_width: float,
               crosswalk_offset: float) -> RoadMap:
     """The roundabout map (built once per parameter set; maps are immutable data)."""
-    return roads.roundabout(radius=radius, lanes=lanes, arms=arms, arm_length=arm_length,
-                            lane_width=lane_width, crosswalk_offset=crosswalk_offset)
+    try:
+        return roads.roundabout(radius=radius, lanes=lanes, arms=arms, arm_length=arm_length,
+                                lane_width=lane_width, crosswalk_offset=crosswalk_offset)
+    except ValueError as error:  # a combination of map parameters the geometry cannot hold
+        raise ConfigError(f"map radius={radius:g} lanes={lanes} arms={arms} arm_length={arm_length:g} "
+                          f"lane_width={lane_width:g}: {error}") from None
 
 
-def _make(level: str, time_limit=MAX_STEPS * CONTROL_TIMESTEP, observation="features", vehicle="sedan",
-          radius=14.0, lanes=2, arms=4, arm_length=50.0, lane_width=3.5, crosswalk_offset=6.0,
-          road_users: dict[str, int] | None = None, random=None, environment_kwargs=None,
-          **task_kwargs) -> DrivingEnvironment:
-    road_map = _road_map(float(radius), int(lanes), int(arms), float(arm_length), float(lane_width),
-                         float(crosswalk_offset))
-    kinds = counts_to_kinds(DENSITIES[level] if road_users is None else road_users)
-    model = world.build(road_map, vehicle=vehicle, traffic=slots(kinds))
+def _make(level: str, config: RoundaboutConfig, environment_kwargs) -> DrivingEnvironment:
+    where = f"roundabout/{level}"
+    env_kwargs = environment_config(environment_kwargs, config.physics_dt, CONTROL_TIMESTEP, where)
+    road_map = _road_map(config.radius, config.lanes, config.arms, config.arm_length, config.lane_width,
+                         config.crosswalk_offset)
+    kinds = counts_to_kinds(DENSITIES[level] if config.road_users is None else config.road_users)
+    model = world.build(road_map, vehicle=config.vehicle, traffic=slots(kinds), timestep=config.physics_dt)
     physics = Physics.from_model(wrapper.MjModel(model))
-    task = RoundaboutTask(model, road_map, kinds, observation=observation, vehicle=vehicle, random=random,
-                          **task_kwargs)
-    environment_kwargs = dict(environment_kwargs or {})
-    environment_kwargs.setdefault("control_timestep", CONTROL_TIMESTEP)
-    return DrivingEnvironment(physics, task, time_limit=time_limit, **environment_kwargs)
+    task = RoundaboutTask(model, road_map, kinds, config)
+    return DrivingEnvironment(physics, task, time_limit=config.time_limit, **env_kwargs)
 
 
 def _register(level: str):
     counts = DENSITIES[level]
 
-    def task_fn(**kwargs) -> DrivingEnvironment:
-        return _make(level, **kwargs)
+    def build(config: RoundaboutConfig, environment_kwargs=None) -> DrivingEnvironment:
+        return _make(level, config, environment_kwargs)
 
-    task_fn.__name__ = level
-    task_fn.__doc__ = (f"Roundabout entry with the study's {level[1:]}-vehicle density: "
-                       + ", ".join(f"{n} {k}s" for k, n in counts.items()) + ".")
-    SUITE.add("study000", "density")(task_fn)
-    return task_fn
+    build.__name__ = level
+    build.__doc__ = (f"Roundabout entry with the study's {level[1:]}-vehicle density: "
+                     + ", ".join(f"{n} {k}s" for k, n in counts.items()) + ".")
+    return SUITE.add("study000", "density")(configured_task(RoundaboutConfig)(build))
 
 
 d120 = _register("d120")

@@ -14,6 +14,7 @@ reaching the last waypoint, or the time limit (truncation).
 from __future__ import annotations
 
 import collections
+from dataclasses import dataclass
 
 import numpy as np
 from dm_control.mujoco import wrapper
@@ -21,44 +22,57 @@ from dm_control.utils import containers
 from dm_env import specs
 
 from mjdrive import roads, world
+from mjdrive.config import param
 from mjdrive.roads import Lane, RoadMap
 from mjdrive.sensors import RouteTracker, wrap_angle
-from mjdrive.tasks.base import DrivingEnvironment, DrivingTask, Physics
+from mjdrive.tasks.base import (
+    DrivingConfig,
+    DrivingEnvironment,
+    DrivingTask,
+    Physics,
+    configured_task,
+    environment_config,
+)
 
 SUITE = containers.TaggedTasks()
 
 CONTROL_TIMESTEP = 0.1  # [s] 10 Hz
 N_WAYPOINT_ANGLES = 15
 REACH_RADIUS = 3.0  # [m] the study's W radius
-OBSERVATIONS = ("features", "camera")
 MIN_RANDOM_ROUTE = 80.0  # [m]
+
+
+@dataclass(frozen=True)
+class WaypointsConfig(DrivingConfig):
+    """The waypoints tasks' keywords."""
+
+    buildings: bool = param(False, "line the roads with static boxes")
+    waypoint_spacing: float = param(2.0, "distance between waypoints along the route", "m", ge=0.5, le=20.0)
+    visible_waypoints: int = param(3, "waypoints drawn as green markers in the camera", ge=0, le=N_WAYPOINT_ANGLES)
+    image_size: int = param(128, "side of the square camera image", "px", ge=16, le=1024)
+    start_noise: tuple[float, float] = param(
+        (0.3, 0.05), "uniform half-ranges of the start's lateral offset [m] and yaw [rad]", "m, rad", ge=0.0, le=2.0)
+
+
+@dataclass(frozen=True)
+class RandomRoutesConfig(WaypointsConfig):
+    """`random_routes` adds the town's size."""
+
+    town_blocks: tuple[int, int] = param((3, 3), "blocks of the town (columns, rows)", ge=1, le=8)
 
 
 class WaypointTask(DrivingTask):
     """Follow the waypoints of one of `routes` (lists of lane ids), or of a random route if `routes` is None."""
 
-    def __init__(
-        self,
-        model,
-        road_map: RoadMap,
-        routes: list[list[int]] | None,
-        observation: str = "features",
-        vehicle: str = "sedan",
-        waypoint_spacing: float = 2.0,  # [m]
-        visible_waypoints: int = 3,
-        image_size: int = 128,  # [px]
-        start_noise: tuple[float, float] = (0.3, 0.05),  # ([m] lateral, [rad] heading) uniform half-ranges
-        random=None,
-    ):
-        if observation not in OBSERVATIONS:
-            raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
-        super().__init__(model, road_map, vehicle, random)
+    def __init__(self, model, road_map: RoadMap, routes: list[list[int]] | None, config: WaypointsConfig):
+        super().__init__(model, road_map, config.vehicle, config.random)
+        self.config = config
         self.routes = routes
-        self.observation = observation
-        self.waypoint_spacing = waypoint_spacing
-        self.visible_waypoints = visible_waypoints
-        self.image_size = image_size
-        self.start_noise = start_noise
+        self.observation = config.observation
+        self.waypoint_spacing = config.waypoint_spacing  # [m]
+        self.visible_waypoints = config.visible_waypoints
+        self.image_size = config.image_size  # [px]
+        self.start_noise = config.start_noise  # ([m] lateral, [rad] heading) uniform half-ranges
         self.spawn_lanes = None if routes else [lane for lane, _ in roads.spawn_points(road_map)]
         self.tracker: RouteTracker | None = None
         self.route_lane: Lane | None = None
@@ -209,41 +223,36 @@ def _crafted():
     return _CRAFTED
 
 
-def _make(road_map, routes, time_limit, observation, buildings, vehicle, random, environment_kwargs,
-          **task_kwargs) -> DrivingEnvironment:
-    seed = random if isinstance(random, int) else 0
-    model = world.build(road_map, vehicle=vehicle, buildings=buildings, seed=seed)
+def _make(road_map, routes, config: WaypointsConfig, environment_kwargs, where: str) -> DrivingEnvironment:
+    env_kwargs = environment_config(environment_kwargs, config.physics_dt, CONTROL_TIMESTEP, where)
+    seed = config.random if isinstance(config.random, int) else 0
+    model = world.build(road_map, vehicle=config.vehicle, buildings=config.buildings, seed=seed,
+                        timestep=config.physics_dt)
     physics = Physics.from_model(wrapper.MjModel(model))
-    task = WaypointTask(model, road_map, routes, observation=observation, vehicle=vehicle, random=random,
-                        **task_kwargs)
-    environment_kwargs = dict(environment_kwargs or {})
-    environment_kwargs.setdefault("control_timestep", CONTROL_TIMESTEP)
-    return DrivingEnvironment(physics, task, time_limit=time_limit, **environment_kwargs)
+    task = WaypointTask(model, road_map, routes, config)
+    return DrivingEnvironment(physics, task, time_limit=config.time_limit, **env_kwargs)
 
 
 @SUITE.add("study004", "crafted", "evaluation")
-def straight(time_limit=20.0, observation="features", buildings=False, vehicle="sedan", random=None,
-             environment_kwargs=None, **task_kwargs):
+@configured_task(WaypointsConfig, time_limit=20.0)
+def straight(config: WaypointsConfig, environment_kwargs=None) -> DrivingEnvironment:
     """The study's evaluation route: a straight lane of ~100 m, 20 s limit."""
     road_map, routes = _crafted()
-    return _make(road_map, [routes["straight"]], time_limit, observation, buildings, vehicle, random,
-                 environment_kwargs, **task_kwargs)
+    return _make(road_map, [routes["straight"]], config, environment_kwargs, "waypoints/straight")
 
 
 @SUITE.add("study004", "crafted")
-def four_routes(time_limit=30.0, observation="features", buildings=False, vehicle="sedan", random=None,
-                environment_kwargs=None, **task_kwargs):
+@configured_task(WaypointsConfig, time_limit=30.0)
+def four_routes(config: WaypointsConfig, environment_kwargs=None) -> DrivingEnvironment:
     """The four crafted routes (sharp left in a junction, straight, soft right, soft left), one per episode."""
     road_map, routes = _crafted()
     chosen = [routes[name] for name in ("left_turn", "straight", "soft_right", "soft_left")]
-    return _make(road_map, chosen, time_limit, observation, buildings, vehicle, random, environment_kwargs,
-                 **task_kwargs)
+    return _make(road_map, chosen, config, environment_kwargs, "waypoints/four_routes")
 
 
 @SUITE.add("study004", "random")
-def random_routes(time_limit=60.0, observation="features", buildings=False, vehicle="sedan", random=None,
-                  environment_kwargs=None, town_blocks=(3, 3), **task_kwargs):
+@configured_task(RandomRoutesConfig, time_limit=60.0)
+def random_routes(config: RandomRoutesConfig, environment_kwargs=None) -> DrivingEnvironment:
     """Random start and destination in a small town of junctions (a new route every episode)."""
-    road_map = roads.town(blocks=tuple(town_blocks))
-    return _make(road_map, None, time_limit, observation, buildings, vehicle, random, environment_kwargs,
-                 **task_kwargs)
+    road_map = roads.town(blocks=config.town_blocks)
+    return _make(road_map, None, config, environment_kwargs, "waypoints/random_routes")
