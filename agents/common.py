@@ -398,13 +398,13 @@ def _one_line(text: str, limit: int = 200) -> str:
 
 
 def _unsafe_reason(message: str) -> str | None:
-    """What made torch's weights_only unpickler refuse a file (its error `message`), or None if it did not."""
+    """Why torch's weights_only unpickler refused a file (from its error `message`), or None if it did not."""
     match = re.search(r"GLOBAL ([\w.]+)", message)
     if match:
-        return f"it names the Python object {match.group(1)}"
+        return f"it would call or build the Python object {match.group(1)}"
     match = re.search(r"WeightsUnpickler error: (.+?)(?:\n\n|Check the documentation|$)", message, re.S)
     if match:
-        return _one_line(match.group(1), 120)
+        return f"it is a pickle the safe unpickler cannot read ({_one_line(match.group(1), 120)})"
     return None
 
 
@@ -441,8 +441,8 @@ def read_checkpoint_file(path: str | Path) -> Any:
     except pickle.UnpicklingError as error:
         reason = _unsafe_reason(str(error))
         if reason is not None:
-            raise CheckpointError(f"checkpoint {path} is refused: {reason}, and a checkpoint may hold only "
-                                  "tensors and plain data (nothing in it was run)") from None
+            raise CheckpointError(f"checkpoint {path} is refused: {reason}; a checkpoint holds only tensors "
+                                  "and plain data, and nothing in this one was run") from None
         raise CheckpointError(f"checkpoint {path} is corrupt or not a torch file "
                               f"(UnpicklingError: {_one_line(error)})") from None
     except Exception as error:  # truncated file, not a torch file, unreadable, ...
