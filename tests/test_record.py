@@ -20,10 +20,14 @@ from mjdrive.policies import make_policy
 from mjdrive.record import EnvSpec, EpisodeRecorder, RecordEpisodes, RecordOptions, load, proto
 from mjdrive.record.reader import logs_table, read_episode
 from mjdrive.record.recorder import episode_filename
-from mjdrive.record.replay import replay
+from mjdrive.record.replay import LEGACY_PHYSICS_DT, replay, replay_task_kwargs
 from mjdrive.tasks.base import RoadUsers
+from mjdrive.world import PHYSICS_TIMESTEP
 
 ROOT = Path(__file__).resolve().parents[1]
+# Logs written at 2 ms before the physics step was a task keyword (their task kwargs do not name it):
+# waypoints/straight with pure pursuit and roundabout/d120 with the autopilot, 20 steps each, seed 7.
+LEGACY_LOGS = sorted((ROOT / "tests" / "data").glob("*.mcap"))
 TASK_KWARGS = {"time_limit": 5.0}  # [s] 50 steps: short episodes keep the tests fast
 CAMERA_EVERY = 10
 PER_STEP = {"/tf", "/ego/state", "/physics"}  # steps + 1 messages (reset state first)
@@ -109,7 +113,8 @@ def test_file_names_and_topics_round_trip(recorded):
     physics = decode("/physics", n)
     assert physics.time == pytest.approx(state["t"]) and len(physics.qpos) == json.loads(metadata["mjdrive"]["nq"])
     meta = {k: json.loads(v) for k, v in metadata["mjdrive"].items()}
-    assert meta["task"] == "waypoints/straight" and meta["seed"] == 3 and meta["task_kwargs"] == TASK_KWARGS
+    assert meta["task"] == "waypoints/straight" and meta["seed"] == 3
+    assert meta["task_kwargs"] == {**TASK_KWARGS, "physics_dt": PHYSICS_TIMESTEP}  # the step is always named
     assert {"mjdrive", "mujoco", "dm-control", "numpy"} <= set(meta["versions"])
     assert json.loads(metadata["summary"]["steps"]) == n
 
@@ -120,6 +125,37 @@ def test_replay_matches_bit_for_bit(recorded, tmp_path, capsys):
     assert result.match, result.report()
     assert cli.main(["replay", str(paths[0]), "--video", str(tmp_path / "replay.mp4")]) == 0
     assert "match" in capsys.readouterr().out and (tmp_path / "replay.mp4").stat().st_size > 0
+
+
+def test_logs_written_at_2ms_before_the_step_was_a_keyword_replay_bit_for_bit():
+    """Old logs name no `physics_dt`: replay rebuilds them at the step their metadata records (2 ms), not
+    at today's default, and every state and reward matches."""
+    assert [p.name for p in LEGACY_LOGS] == ["roundabout-d120_7_00000.mcap", "waypoints-straight_7_00000.mcap"]
+    for path in LEGACY_LOGS:
+        meta = read_episode(path, topics=set()).metadata
+        assert "physics_dt" not in meta["task_kwargs"] and meta["physics_timestep"] == LEGACY_PHYSICS_DT
+        result = replay(path)
+        assert result.match and result.checked == 20, result.report()
+
+
+def test_replay_step_comes_from_the_log():
+    assert replay_task_kwargs({"task_kwargs": {"random": 1}}) == {"random": 1, "physics_dt": LEGACY_PHYSICS_DT}
+    assert replay_task_kwargs({"task_kwargs": None, "physics_timestep": 0.004}) == {"physics_dt": 0.004}
+    assert replay_task_kwargs({"task_kwargs": {"physics_dt": 0.005}, "physics_timestep": 0.002}) == {
+        "physics_dt": 0.005}
+
+
+def test_a_log_made_at_another_step_replays_at_that_step(tmp_path):
+    """An episode run at 2 ms with today's code names its step and replays at it (the default differs)."""
+    assert PHYSICS_TIMESTEP != 0.002
+    env = RecordEpisodes(make_env("waypoints", "straight", physics_dt=0.002, **TASK_KWARGS), tmp_path)
+    steps = _drive(env, 5, lambda observation: np.array([0.4, 0.0, 0.0], np.float32))
+    env.close()
+    path = env.recorder.paths[0]
+    meta = read_episode(path, topics=set()).metadata
+    assert meta["task_kwargs"]["physics_dt"] == 0.002 and meta["physics_timestep"] == 0.002
+    result = replay(path)
+    assert result.match and result.checked == steps, result.report()
 
 
 def test_replay_detects_a_wrong_action(tmp_path):

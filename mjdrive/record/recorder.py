@@ -27,8 +27,9 @@ Topics (log times: the episode's wall-clock start + simulated time, so plots sta
 
 /tf, /ego/state, /physics and /scene/road_users also carry the state right after reset (step 0), so they
 hold steps + 1 messages; /action and /reward hold one per step. MCAP metadata "mjdrive" (written first)
-holds what replay needs: task, task and environment kwargs, seed, the task's RNG state at reset, package
-versions; metadata "summary" (written last) repeats /episode. Metadata values are JSON strings.
+holds what replay needs: task, task and environment kwargs (the task kwargs always name the physics step,
+`physics_dt` [s]), seed, the task's RNG state at reset, package versions; metadata "summary" (written last)
+repeats /episode. Metadata values are JSON strings.
 """
 
 from __future__ import annotations
@@ -238,6 +239,13 @@ class EpisodeRecorder:
         except TypeError:
             return json.dumps(_jsonable(kwargs)), False
 
+    def _task_kwargs_with_step(self, physics_dt: float) -> str:
+        """The task kwargs' JSON with the physics step [s] the episode ran at (`physics_dt`), so that the log
+        replays at that step whatever the default is when it is replayed."""
+        kwargs = json.loads(self._task_kwargs_json) or {}
+        kwargs.setdefault("physics_dt", physics_dt)
+        return json.dumps(kwargs)
+
     @property
     def recording(self) -> bool:
         """An episode file is open."""
@@ -306,7 +314,8 @@ class EpisodeRecorder:
             "versions": dict(package_versions()), "host": platform.node(), "pid": os.getpid(), **(extra or {}),
         }
         metadata = {key: json.dumps(value) for key, value in meta.items()}
-        metadata["task_kwargs"], metadata["environment_kwargs"] = self._task_kwargs_json, self._environment_kwargs_json
+        metadata["task_kwargs"] = self._task_kwargs_with_step(float(model.opt.timestep))
+        metadata["environment_kwargs"] = self._environment_kwargs_json
         self._writer.write_metadata("mjdrive", metadata)
         ns = self._t0 + _ns(data.time)
         self._channels.road.log(self._road_bytes(task.road_map), ns)

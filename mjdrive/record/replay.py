@@ -12,6 +12,16 @@ from mjdrive.record.reader import EpisodeFileError, read_episode
 from mjdrive.record.recorder import decode_rng_state, package_versions
 
 STATE_FIELDS = ("time", "qpos", "qvel", "act", "mocap_pos", "mocap_quat")
+LEGACY_PHYSICS_DT = 0.002  # [s] the physics step of every task before the step became a task keyword
+
+
+def replay_task_kwargs(metadata: dict) -> dict:
+    """The task kwargs that rebuild a log's env: its own, with the physics step it ran at (`physics_dt` [s]):
+    the kwarg if logged, else the metadata's `physics_timestep`, else LEGACY_PHYSICS_DT (logs written before
+    either was recorded all ran at 2 ms)."""
+    kwargs = dict(metadata.get("task_kwargs") or {})
+    kwargs.setdefault("physics_dt", float(metadata.get("physics_timestep", LEGACY_PHYSICS_DT)))
+    return kwargs
 
 
 @dataclass
@@ -72,8 +82,7 @@ def replay(path: str | Path, video: str | Path | None = None) -> ReplayResult:
     rewards = [r["reward"] for r in episode.json("/reward")]
     steps = min(len(actions), len(rewards), len(physics_log["time"]) - 1)
 
-    env = DrivingGymEnv(meta["domain"], meta["task_name"], meta.get("task_kwargs") or {},
-                        meta.get("environment_kwargs"))
+    env = DrivingGymEnv(meta["domain"], meta["task_name"], replay_task_kwargs(meta), meta.get("environment_kwargs"))
     try:
         if meta.get("rng_state") is not None:
             env.task.random.set_state(decode_rng_state(meta["rng_state"]))
