@@ -4,27 +4,101 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from mjdrive.policies import POLICIES
+
+MAX_SEED = 2**32 - 1
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with one-line errors (exit status 2) and the defaults shown in --help."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", argparse.ArgumentDefaultsHelpFormatter)
+        super().__init__(*args, **kwargs)
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
+
+
+def int_at_least(low: int, high: int | None = None):
+    """argparse type: an integer in [low, high]."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < low or (high is not None and value > high):
+            bound = f">= {low}" if high is None else f"in {low}..{high}"
+            raise argparse.ArgumentTypeError(f"must be {bound}, got {value}")
+        return value
+
+    return parse
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return value
+
+
+def existing_file(text: str) -> str:
+    """argparse type: a path to an existing file."""
+    path = Path(text)
+    if not path.exists():
+        raise argparse.ArgumentTypeError(f"{text}: no such file")
+    if not path.is_file():
+        raise argparse.ArgumentTypeError(f"{text} is a folder, not a file")
+    return text
+
+
+def existing_folder(text: str) -> str:
+    """argparse type: a path to an existing folder."""
+    path = Path(text)
+    if not path.exists():
+        raise argparse.ArgumentTypeError(f"{text}: no such folder")
+    if not path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is a file, not a folder")
+    return text
+
+
+def task_name(text: str) -> str:
+    """argparse type: DOMAIN/TASK of a registered task."""
+    from mjdrive import suite
+
+    if text.count("/") != 1:
+        raise argparse.ArgumentTypeError(f"expected DOMAIN/TASK (e.g. waypoints/straight), got {text!r}")
+    try:
+        suite.task_config(*text.split("/"))
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+    return text
+
 
 def _split_task(name: str) -> tuple[str, str]:
-    if "/" not in name:
-        raise SystemExit(f"--task must be DOMAIN/TASK (e.g. waypoints/straight), got {name!r}")
-    domain, task = name.split("/", 1)
+    domain, task = task_name(name).split("/", 1)
     return domain, task
 
 
 def _parse_kwargs(pairs: list[str]) -> dict:
-    """KEY=VALUE pairs, VALUE parsed as JSON when it parses (numbers, booleans, lists), else a string."""
+    """KEY=VALUE pairs, VALUE parsed as JSON when it parses (numbers, booleans, lists, null), else a string."""
     out = {}
     for pair in pairs:
-        if "=" not in pair:
-            raise SystemExit(f"--task-kwarg expects KEY=VALUE, got {pair!r}")
-        key, value = pair.split("=", 1)
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--task-kwarg expects KEY=VALUE, got {pair!r}")
         try:
             out[key] = json.loads(value)
         except json.JSONDecodeError:
@@ -36,10 +110,22 @@ def cmd_list(args) -> int:
     from mjdrive import suite
     from mjdrive.envs import GYM_IDS
 
-    print("dm_control tasks (mjdrive.suite.load(domain, task)):")
+    if args.kwargs:
+        domain, task = _split_task(args.kwargs)
+        config_class, defaults = suite.task_config(domain, task)
+        print(f"keywords of {domain}/{task} (suite.load(..., task_kwargs={{...}}), --task-kwarg KEY=VALUE):")
+        print(config_class.markdown(defaults))
+        return 0
+    rows = []
     for domain, task in suite.ALL_TASKS:
         tags = [tag for tag in suite.TAGS if (domain, task) in suite.tasks_with_tag(tag)]
-        print(f"  {domain}/{task:<16} tags: {', '.join(tags)}")
+        doc = (suite.task_description(domain, task) or "").split("\n")[0]
+        rows.append((f"{domain}/{task}", ", ".join(tags), doc))
+    width = [max(len(row[i]) for row in rows) for i in range(2)]
+    print("dm_control tasks (mjdrive.suite.load(domain, task); keywords: mjdrive list --kwargs DOMAIN/TASK):")
+    print(f"  {'task':<{width[0]}}  {'tags':<{width[1]}}  description")
+    for name, tags, doc in rows:
+        print(f"  {name:<{width[0]}}  {tags:<{width[1]}}  {doc}")
     print("gymnasium ids (gymnasium.make(id)):")
     for env_id in GYM_IDS:
         print(f"  {env_id}")
@@ -151,59 +237,65 @@ def cmd_ensemble(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="mjdrive", description="MuJoCo driving-simulation suite for RL.")
+    parser = ArgumentParser(prog="mjdrive", description="MuJoCo driving-simulation suite for RL.")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    sub.add_parser("list", help="list tasks, tags and gymnasium ids").set_defaults(func=cmd_list)
+    listing = sub.add_parser("list", help="list tasks, tags and gymnasium ids; or one task's keywords")
+    listing.add_argument("--kwargs", default=None, type=task_name, metavar="DOMAIN/TASK",
+                         help="print the task's keywords: type, default, unit, allowed values")
+    listing.set_defaults(func=cmd_list)
 
     run = sub.add_parser("run", help="drive a task with a policy; write videos and a summary")
-    run.add_argument("--task", default="waypoints/four_routes", help="DOMAIN/TASK (see `mjdrive list`)")
+    run.add_argument("--task", default="waypoints/four_routes", type=task_name, help="DOMAIN/TASK (see `mjdrive list`)")
     run.add_argument("--task-kwarg", action="append", default=[], metavar="KEY=VALUE",
                      help="task keyword argument, e.g. observation=camera buildings=true (repeatable)")
-    run.add_argument("--policy", default="pure_pursuit", help="pure_pursuit | autopilot | random | idle")
-    run.add_argument("--episodes", type=int, default=1)
-    run.add_argument("--seed", type=int, default=0)
+    run.add_argument("--policy", default="pure_pursuit", choices=POLICIES, help="the driver")
+    run.add_argument("--episodes", type=int_at_least(1), default=1, help="episodes to drive")
+    run.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=0, help="seed of the first episode")
     run.add_argument("--out", default="runs/demo", help="output folder")
     run.add_argument("--video", action=argparse.BooleanOptionalAction, default=True,
                      help="write an mp4 per episode (front camera | top view)")
     run.add_argument("--record", action=argparse.BooleanOptionalAction, default=True,
                      help="write an MCAP log per episode into OUT (Foxglove; see `mjdrive logs`, `mjdrive replay`)")
-    run.add_argument("--record-camera-every", type=int, default=1, metavar="K",
+    run.add_argument("--record-camera-every", type=int_at_least(0), default=1, metavar="K",
                      help="log the front camera every K-th step (0: no images)")
-    run.add_argument("--record-image-format", default="jpeg", choices=("jpeg", "png"))
+    run.add_argument("--record-image-format", default="jpeg", choices=("jpeg", "png"),
+                     help="compression of the logged camera images")
     run.set_defaults(func=cmd_run)
 
     replay = sub.add_parser("replay", help="re-simulate a logged episode and check it matches bit for bit")
-    replay.add_argument("file", help="an episode's .mcap file")
+    replay.add_argument("file", type=existing_file, help="an episode's .mcap file")
     replay.add_argument("--video", default=None, metavar="OUT.mp4", help="also render the replay to a video")
     replay.set_defaults(func=cmd_replay)
 
     logs = sub.add_parser("logs", help="summarise a folder of episode logs as a markdown table")
-    logs.add_argument("folder", help="a folder of .mcap episode files")
+    logs.add_argument("folder", type=existing_folder, help="a folder of .mcap episode files")
     logs.add_argument("--out", default=None, help="also write the table to this file")
     logs.set_defaults(func=cmd_logs)
 
     bench = sub.add_parser("bench", help="throughput: raw mj_step vs env steps, with and without camera")
-    bench.add_argument("--tasks", nargs="*", default=["waypoints/straight", "waypoints/random_routes"],
+    bench.add_argument("--tasks", nargs="*", type=task_name, default=["waypoints/straight", "waypoints/random_routes"],
                        help="tasks for the env-vs-raw table (none: skip it)")
     bench.add_argument("--roundabout", nargs="*", default=["d120", "d140", "d160", "d210"], metavar="LEVEL",
+                       choices=("d120", "d140", "d160", "d210"),
                        help="roundabout densities for the roundabout table (none: skip it)")
     bench.add_argument("--highway", action=argparse.BooleanOptionalAction, default=True,
                        help="also run highway-env's roundabout-v0 when it is installed")
-    bench.add_argument("--seconds", type=float, default=3.0, help="wall time per measurement [s]")
-    bench.add_argument("--image-size", type=int, default=128)
+    bench.add_argument("--seconds", type=positive_float, default=3.0, help="wall time per measurement [s]")
+    bench.add_argument("--image-size", type=int_at_least(16, 1024), default=128, help="camera side [px]")
     bench.add_argument("--out", default=None, help="also write the report to this file")
     bench.set_defaults(func=cmd_bench)
 
     train = sub.add_parser("train", help="train a learner (ppo, sac, dqn, trpo) on a task")
-    train.add_argument("--algo", default="ppo", help="ppo | sac | dqn | trpo (config: agents/configs/ALGO.yaml)")
+    train.add_argument("--algo", default="ppo", choices=("ppo", "sac", "dqn", "trpo"),
+                       help="the learner (config: agents/configs/ALGO.yaml)")
     train.add_argument("--config", default=None, help="config file, or name in agents/configs/ (e.g. ppo_camera)")
-    train.add_argument("--task", default=None, help="DOMAIN/TASK (default: the config's)")
+    train.add_argument("--task", default=None, type=task_name, help="DOMAIN/TASK (default: the config's)")
     train.add_argument("--task-kwarg", action="append", default=[], metavar="KEY=VALUE",
                        help="task keyword argument, e.g. observation=camera (repeatable)")
-    train.add_argument("--steps", type=int, default=None, help="env steps (default: the config's)")
-    train.add_argument("--seed", type=int, default=None)
-    train.add_argument("--num-envs", type=int, default=None, help="env copies stepped together")
+    train.add_argument("--steps", type=int_at_least(1), default=None, help="env steps (default: the config's)")
+    train.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=None, help="seed (default: the config's)")
+    train.add_argument("--num-envs", type=int_at_least(1, 1024), default=None, help="env copies stepped together")
     train.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                        help="config override, dots for nesting, e.g. algorithm.batch_size=128 (repeatable)")
     train.add_argument("--out", default=None, help="run folder (default: runs/ALGO_TASK_seedS)")
@@ -214,12 +306,13 @@ def build_parser() -> argparse.ArgumentParser:
     train.set_defaults(func=cmd_train)
 
     evaluate = sub.add_parser("eval", help="evaluate a checkpoint: the study's table as markdown and JSON")
-    evaluate.add_argument("--checkpoint", required=True, help="a run's policy.pt or checkpoint.pt")
-    evaluate.add_argument("--episodes", type=int, default=50)
-    evaluate.add_argument("--task", default=None, help="DOMAIN/TASK (default: the one it was trained on)")
+    evaluate.add_argument("--checkpoint", required=True, type=existing_file, help="a run's policy.pt or checkpoint.pt")
+    evaluate.add_argument("--episodes", type=int_at_least(1), default=50, help="episodes to evaluate")
+    evaluate.add_argument("--task", default=None, type=task_name,
+                          help="DOMAIN/TASK (default: the one it was trained on)")
     evaluate.add_argument("--task-kwarg", action="append", default=[], metavar="KEY=VALUE",
                           help="task keyword argument, e.g. time_limit=20 (repeatable)")
-    evaluate.add_argument("--seed", type=int, default=10_000, help="seed of the first episode")
+    evaluate.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=10_000, help="seed of the first episode")
     evaluate.add_argument("--stochastic", action="store_true", help="sample actions instead of greedy ones")
     evaluate.add_argument("--out", default=None, help="write OUT.md and OUT.json")
     evaluate.add_argument("--record", action=argparse.BooleanOptionalAction, default=True,
@@ -229,7 +322,8 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.set_defaults(func=cmd_eval)
 
     ensemble = sub.add_parser("ensemble", help="combine trained policies into one that `eval` reads like a policy.pt")
-    ensemble.add_argument("members", nargs="+", help="policy.pt or checkpoint files of runs on the same observation")
+    ensemble.add_argument("members", nargs="+", type=existing_file,
+                          help="policy.pt or checkpoint files of runs on the same observation")
     ensemble.add_argument("--rule", default="min_pedal",
                           help="'mean' (the mean action) or 'min_pedal' (the smallest pedal with the mean steer, "
                                "pedal actions; default)")
@@ -239,12 +333,20 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run a subcommand. A user's mistake (a bad name, number, keyword, path or file) prints one line and
+    exits with status 2; set MJDRIVE_DEBUG=1 to see the traceback instead."""
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except ValueError as error:  # bad names and arguments: a clear message, no traceback
-        print(f"mjdrive: error: {error}", file=sys.stderr)
+    except (ValueError, OSError) as error:  # bad names, keywords, files: a clear message, no traceback
+        if os.environ.get("MJDRIVE_DEBUG"):
+            raise
+        message = " ".join(str(error).split()) or type(error).__name__
+        print(f"mjdrive {args.command}: error: {message}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"mjdrive {args.command}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -45,9 +45,13 @@ class Spec:
     keys: tuple[str, ...] | None = None  # allowed keys of a dict value
 
     def bounds_text(self) -> str:
-        lower = f">= {self.ge:g}" if self.ge is not None else f"> {self.gt:g}" if self.gt is not None else ""
-        upper = f"<= {self.le:g}" if self.le is not None else f"< {self.lt:g}" if self.lt is not None else ""
-        return " and ".join(part for part in (lower, upper) if part)
+        parts = [f"{op} {_number(bound)}" for op, bound in ((">=", self.ge), (">", self.gt), ("<=", self.le),
+                                                            ("<", self.lt)) if bound is not None]
+        return " and ".join(parts)
+
+
+def _number(x: float) -> str:
+    return str(int(x)) if float(x).is_integer() and abs(x) < 1e16 else f"{x:g}"
 
 
 def param(default: Any, doc: str, unit: str = "", **allowed: Any) -> Any:
@@ -102,7 +106,11 @@ def _convert(value: Any, tp: Any, spec: Spec) -> Any:
                 return _convert(value, option, spec)
             except _Invalid as error:
                 reasons.append(str(error))
-        raise _Invalid(reasons[0] if len(reasons) == 1 else f"must be {_type_name(tp)}")
+        bounds = [r for r in reasons if "<" in r or ">" in r]  # the value has a right type but not a right size
+        if bounds or len(reasons) == 1:
+            raise _Invalid((bounds or reasons)[0])
+        kinds = [r.removeprefix("must be ") for r in reasons] + (["None"] if type(None) in args else [])
+        raise _Invalid("must be " + ", ".join(kinds[:-1]) + " or " + kinds[-1])
     if tp is bool:
         if isinstance(value, (bool, np.bool_)):
             return bool(value)
@@ -181,7 +189,7 @@ def _convert(value: Any, tp: Any, spec: Spec) -> Any:
     if isinstance(tp, type):
         if isinstance(value, tp):
             return value
-        raise _Invalid(f"must be a {tp.__name__}")
+        raise _Invalid(f"must be a {tp.__module__.split('.')[0]}.{tp.__qualname__}")
     raise TypeError(f"config fields of type {tp!r} are not supported")  # a bug in a Config declaration
 
 

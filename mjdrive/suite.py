@@ -65,6 +65,11 @@ def task_config(domain_name: str, task_name: str) -> tuple[type[DrivingConfig], 
     return task_fn.config_class, dict(task_fn.config_defaults)
 
 
+def task_description(domain_name: str, task_name: str) -> str:
+    """The task's docstring (its first line is a one-line description)."""
+    return (_task_fn(domain_name, task_name).__doc__ or "").strip()
+
+
 def load(
     domain_name: str,
     task_name: str,
