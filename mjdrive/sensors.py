@@ -7,7 +7,9 @@ loops over contacts, vehicles or lanes).
 from __future__ import annotations
 
 import atexit
+import os
 import weakref
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -144,27 +146,36 @@ class RouteTracker:
 
 
 _OPEN_RENDERERS: weakref.WeakSet = weakref.WeakSet()
+# Each open renderer's (GL context, MuJoCo render context), by id(renderer): held here so that neither is
+# garbage-collected on its own (their finalizers would free GL objects in whichever context is current, i.e.
+# another renderer's); only CameraRenderer.close frees them, with their own context current.
+_CONTEXTS: dict[int, tuple[Any, mujoco.MjrContext]] = {}
+FONT_SCALE = mujoco.mjtFontScale.mjFONTSCALE_150  # mujoco.Renderer's default
+MAX_GEOMS = 10_000  # geoms a scene holds (mujoco.Renderer's default)
 
 
-def _ensure_headless_gl() -> None:
-    """If mujoco was imported before mjdrive (so before MUJOCO_GL defaulted to egl) on a machine without
-    a display, it picked GLFW, which cannot open a context: switch its renderer to EGL or OSMesa."""
-    import os
-
+def _gl_context_class() -> type:
+    """MuJoCo's off-screen GL context class for MUJOCO_GL (read when mujoco was first imported). If mujoco was
+    imported before mjdrive (so before MUJOCO_GL defaulted to egl) on a machine without a display, it picked
+    GLFW, which cannot open a context: EGL or OSMesa then, without changing mujoco's own choice."""
     from mujoco.rendering.classic import gl_context
 
-    if os.environ.get("DISPLAY") or gl_context.GLContext is None:
-        return
-    if gl_context.GLContext.__module__.startswith("mujoco.glfw"):
+    context_class = getattr(gl_context, "GLContext", None)
+    if context_class is None:
+        raise RuntimeError(f"off-screen rendering is disabled (MUJOCO_GL={os.environ.get('MUJOCO_GL')!r} when "
+                           "mujoco was imported); set MUJOCO_GL=egl or osmesa before importing mujoco")
+    if context_class.__module__.startswith("mujoco.glfw") and not os.environ.get("DISPLAY"):
         if os.environ.get("MUJOCO_GL", "egl").lower() == "osmesa":
             from mujoco.osmesa import GLContext
         else:
             from mujoco.egl import GLContext
-        gl_context.GLContext = GLContext
+        context_class = GLContext
+    return context_class
 
 
 def _close_renderers() -> None:
-    """Free GL contexts before the GL library itself is torn down at exit (avoids EGL errors)."""
+    """Free every open renderer's GL context before the GL library itself is torn down at exit (avoids EGL
+    errors); registered after the GL backend's own exit handler, so it runs first."""
     for renderer in list(_OPEN_RENDERERS):
         renderer.close()
 
@@ -173,46 +184,76 @@ class CameraRenderer:
     """Off-screen RGB camera with shadows, reflections and (by default) anti-aliasing off, and optional
     waypoint markers.
 
-    Markers are drawn into the scene at render time only (they do not exist in the physics).
+    Each renderer owns its GL context: it makes it current before every render and before freeing its GL
+    objects, so any number of renderers (of one env or of several) can be made and closed in any order without
+    touching each other's images. Markers are drawn into the scene at render time only (they do not exist in
+    the physics).
     """
 
     MARKER_RGBA = np.array([0.1, 0.9, 0.2, 1.0], np.float32)
     MARKER_SIZE = np.array([0.35, 0.35, 0.02])  # [m] half sizes of the flat green rectangles
 
     def __init__(self, model: mujoco.MjModel, camera: str, height: int, width: int, antialias: bool = False):
-        _ensure_headless_gl()
+        cameras = [model.camera(i).name for i in range(model.ncam)]
+        if camera not in cameras:
+            raise ValueError(f"no camera {camera!r} in the model; cameras: {', '.join(cameras)}")
+        if not (0 < width <= model.vis.global_.offwidth and 0 < height <= model.vis.global_.offheight):
+            raise ValueError(f"image size {height}x{width} px must be positive and at most the model's off-screen "
+                             f"buffer, {model.vis.global_.offheight}x{model.vis.global_.offwidth} px")
+        self.model, self.camera_id = model, model.camera(camera).id
+        self.height, self.width = height, width
+        gl = _gl_context_class()(width, height)
         samples = model.vis.quality.offsamples
         # Multisampling triples the cost of a small software render: off for observations, on for videos.
         model.vis.quality.offsamples = samples if antialias else 0
         try:
-            self.renderer = mujoco.Renderer(model, height, width)
-        except mujoco.FatalError as error:
+            gl.make_current()
+            context = mujoco.MjrContext(model, FONT_SCALE.value)
+            mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN.value, context)
+        except (mujoco.FatalError, RuntimeError) as error:
+            gl.free()
             raise RuntimeError(
                 f"off-screen rendering failed ({error}). Install libegl1 libopengl0 libgl1-mesa-dri "
                 "(MUJOCO_GL=egl) or libosmesa6 (MUJOCO_GL=osmesa), e.g. with `make install` as root."
             ) from error
         finally:
             model.vis.quality.offsamples = samples
-        self.camera = model.camera(camera).id
-        self.buffer = np.empty((height, width, 3), np.uint8)
         if not _OPEN_RENDERERS:  # registered after the GL backend's own exit handler, so it runs first
             atexit.unregister(_close_renderers)
             atexit.register(_close_renderers)
+        _CONTEXTS[id(self)] = (gl, context)
         _OPEN_RENDERERS.add(self)
+        self.scene = mujoco.MjvScene(model, maxgeom=MAX_GEOMS)
+        self.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
+        self.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
+        self.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = True
+        self.option = mujoco.MjvOption()
+        self.view = mujoco.MjvCamera()
+        self.view.type, self.view.fixedcamid = mujoco.mjtCamera.mjCAMERA_FIXED, self.camera_id
+        self.rect = mujoco.MjrRect(0, 0, width, height)
+        self._pixels = np.empty((height, width, 3), np.uint8)  # as GL reads them: bottom row first
+        self.buffer = np.empty((height, width, 3), np.uint8)
         self._identity = np.eye(3).ravel()
-        scene = self.renderer.scene
-        scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
-        scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
-        scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = True
+
+    @property
+    def closed(self) -> bool:
+        return id(self) not in _CONTEXTS
+
+    def _update_scene(self, data: mujoco.MjData) -> None:
+        mujoco.mjv_updateScene(self.model, data, self.option, None, self.view, mujoco.mjtCatBit.mjCAT_ALL.value,
+                               self.scene)
 
     def render(self, data: mujoco.MjData, markers: np.ndarray | None = None, z: float = 0.03) -> np.ndarray:
-        """Render into the reused buffer; returns it (copy it if you keep it)."""
+        """Render into the reused buffer; returns it (copy it if you keep it). RuntimeError after `close`."""
+        if self.closed:
+            raise RuntimeError("this CameraRenderer is closed (its GL context is freed); make a new one")
+        gl, context = _CONTEXTS[id(self)]
         # MuJoCo places infinite planes (the ground) using the camera pose of the *previous* scene update,
         # so a frame after the camera jumped (a reset) would differ from the same state rendered again:
         # update twice (a few µs) so the image depends on the state alone.
-        self.renderer.update_scene(data, self.camera)
-        self.renderer.update_scene(data, self.camera)
-        scene = self.renderer.scene
+        self._update_scene(data)
+        self._update_scene(data)
+        scene = self.scene
         if markers is not None:
             for point in markers:
                 if scene.ngeom >= scene.maxgeom:
@@ -222,10 +263,25 @@ class CameraRenderer:
                     np.array([point[0], point[1], z]), self._identity, self.MARKER_RGBA,
                 )
                 scene.ngeom += 1
-        return self.renderer.render(out=self.buffer)
+        gl.make_current()  # this renderer's context: another renderer may have made its own current since
+        mujoco.mjr_render(self.rect, scene, context)
+        mujoco.mjr_readPixels(self._pixels, None, self.rect, context)
+        np.copyto(self.buffer, self._pixels[::-1])  # GL's first row is the bottom one
+        return self.buffer
 
     def close(self) -> None:
-        if self.renderer is not None:
-            self.renderer.close()
-            self.renderer = None
+        """Free this renderer's GL objects with its own context current, then the context (idempotent)."""
+        gl, context = _CONTEXTS.pop(id(self), (None, None))
         _OPEN_RENDERERS.discard(self)
+        if gl is None:
+            return
+        try:
+            gl.make_current()
+            context.free()
+            del context  # MjrContext's own finalizer runs now, with this context still current
+        finally:
+            gl.free()
+
+    def __del__(self) -> None:
+        if _CONTEXTS is not None and id(self) in _CONTEXTS:  # dropped without close (e.g. an env not closed)
+            self.close()

@@ -196,6 +196,12 @@ class DrivingTask(control.Task):
             self.cameras[key] = CameraRenderer(physics.raw_model, camera, height, width, antialias)
         return self.cameras[key].render(physics.raw_data, markers)
 
+    def close_cameras(self) -> None:
+        """Free the camera renderers (each in its own GL context); a later render_camera makes new ones."""
+        for renderer in self.cameras.values():
+            renderer.close()
+        self.cameras.clear()
+
 
 class DrivingEnvironment(control.Environment):
     """dm_control Environment whose episode ends (discount 0, `info["physics_error"]`) when the
@@ -209,6 +215,11 @@ class DrivingEnvironment(control.Environment):
     @property
     def info(self) -> dict[str, Any]:
         return self.task.info
+
+    def close(self) -> None:
+        """Free the task's camera renderers (dm_env's close frees nothing)."""
+        self.task.close_cameras()
+        super().close()
 
     def reset(self) -> dm_env.TimeStep:
         timestep = super().reset()
