@@ -3,8 +3,12 @@
 Figures are ratios within one process on one machine, so they compare across machines better than the
 absolute numbers. Simulated seconds per wall second = steps/s x step duration.
 
+Every env runs at the default physics step (`world.PHYSICS_TIMESTEP`) and, interleaved with it, at 2 ms (the
+step before the default was chosen by measurement, results/physics_dt.md): the ratio is the speed-up of the step.
+
 The roundabout section runs every density level with the ego waiting at its yield line (brake) while the
-traffic flows, and highway-env's roundabout-v0 in the same process when it is installed (extra `bench`).
+traffic flows, and highway-env's roundabout-v0 in the same process when it is installed (extra `bench`), side by
+side with an mjdrive roundabout holding as many cars (the ego and four others, as in roundabout-v0).
 """
 
 from __future__ import annotations
@@ -17,11 +21,14 @@ import mujoco
 import numpy as np
 
 from mjdrive import suite
+from mjdrive.world import PHYSICS_TIMESTEP
 
 CRUISE_ACTION = np.array([0.25, 0.0, 0.0])  # gentle throttle, straight ahead
 HOLD_ACTION = np.array([0.0, 0.0, 1.0])  # brake: the ego waits at its yield line, traffic flows around it
 ROUNDABOUT_LEVELS = ("d120", "d140", "d160", "d210")
 ROUNDS = 5  # interleaved measurement rounds per task (the best of each is kept)
+COMPARE_DT = 0.002  # [s] the physics step the default is compared with
+HIGHWAY_CARS = {"car": 4}  # road users of the roundabout run beside highway-env's roundabout-v0 (ego + 4 cars)
 
 
 def _rate(step: Callable[[], None], seconds: float) -> float:
@@ -73,13 +80,17 @@ def bench_task(name: str, seconds: float = 3.0, image_size: int = 128) -> dict[s
         return image
 
     camera_env.task.render_camera = timed_render
+    env_2ms = suite.load(domain, task, {"random": 0, "physics_dt": COMPARE_DT})
+    env_2ms.reset()
     measurements = {
         "raw_steps_per_s": (raw, n_sub),
         "env_steps_per_s": (env_step(env), 1),
+        "env_2ms_steps_per_s": (env_step(env_2ms), 1),
         "camera_env_steps_per_s": (env_step(camera_env), 1),
     }
     # Interleaved short rounds, best of each: robust to other processes sharing the machine.
-    result = {"dt": dt, "n_sub": n_sub, "nbody": model.nbody, "ngeom": model.ngeom}
+    result = {"dt": dt, "n_sub": n_sub, "nbody": model.nbody, "ngeom": model.ngeom,
+              "control_dt_2ms": env_2ms.control_timestep()}
     result.update({key: 0.0 for key in measurements})
     for _ in range(ROUNDS):
         for key, (step, scale) in measurements.items():
@@ -99,20 +110,26 @@ def run_benchmarks(tasks: list[str], seconds: float = 3.0, image_size: int = 128
     lines = [
         f"# mjdrive bench ({platform.processor() or platform.machine()}, {mujoco.__version__=}, one thread)",
         "",
+        f"Physics step {PHYSICS_TIMESTEP * 1e3:g} ms (the default); env at {COMPARE_DT * 1e3:g} ms: the same env at "
+        f"physics_dt={COMPARE_DT:g}.",
+        "",
         "| task | raw mj_step [steps/s] | raw [sim-s/wall-s] | env features [steps/s] | env [sim-s/wall-s] "
-        "| env/raw | env camera [steps/s] | camera step [ms] | its render [ms] | camera step - render [ms] "
+        f"| env/raw | env at {COMPARE_DT * 1e3:g} ms [sim-s/wall-s] | default / {COMPARE_DT * 1e3:g} ms "
+        "| env camera [steps/s] | camera step [ms] | its render [ms] | camera step - render [ms] "
         "| features step [ms] |",
-        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for name in tasks:
         r = bench_task(name, seconds, image_size)
         control_dt = r["dt"] * r["n_sub"]
         raw_sim = r["raw_steps_per_s"] * r["dt"]
         env_sim = r["env_steps_per_s"] * control_dt
+        env_2ms_sim = r["env_2ms_steps_per_s"] * r["control_dt_2ms"]
         camera_ms = 1e3 / r["camera_env_steps_per_s"]
         lines.append(
             f"| {name} | {r['raw_steps_per_s']:,.0f} | {raw_sim:.1f} | {r['env_steps_per_s']:,.0f} "
-            f"| {env_sim:.1f} | {env_sim / raw_sim:.0%} | {r['camera_env_steps_per_s']:,.0f} "
+            f"| {env_sim:.1f} | {env_sim / raw_sim:.0%} | {env_2ms_sim:.1f} | {env_sim / env_2ms_sim:.2f}x "
+            f"| {r['camera_env_steps_per_s']:,.0f} "
             f"| {camera_ms:.2f} | {r['render_ms']:.2f} | {camera_ms - r['render_ms']:.2f} "
             f"| {1e3 / r['env_steps_per_s']:.2f} |"
         )
@@ -158,14 +175,18 @@ def bench_roundabout(level: str, seconds: float = 3.0, image_size: int = 84) -> 
                 environment.reset()
         return go
 
+    env_2ms = suite.load("roundabout", level, {"random": 0, "physics_dt": COMPARE_DT})
+    env_2ms.reset()
     result = {"dt": dt, "n_sub": n_sub, "users": traffic.n, "decision": traffic.config.decision_period}
     # Interleaved short rounds, best of each: robust to other processes sharing the machine.
-    raw, envs = [], []
+    raw, envs, envs_2ms = [], [], []
     for _ in range(ROUNDS):
         raw.append(_rate(lambda: mujoco.mj_step(model, data, n_sub), seconds / ROUNDS) * n_sub)
         envs.append(_timed_rate(step(env), seconds / ROUNDS, lambda: traffic.cpu_time))
+        envs_2ms.append(_rate(step(env_2ms), seconds / ROUNDS))
     result["raw_steps_per_s"] = max(raw)
     result["env_steps_per_s"], result["traffic_share"] = max(envs)
+    result["env_2ms_steps_per_s"] = max(envs_2ms)
     camera_env = suite.load("roundabout", level, {"random": 0, "observation": "camera", "image_size": image_size})
     camera_env.reset()
     result["camera_env_steps_per_s"] = _rate(step(camera_env), seconds)
@@ -175,7 +196,9 @@ def bench_roundabout(level: str, seconds: float = 3.0, image_size: int = 84) -> 
 
 
 def bench_highway_env(seconds: float = 3.0) -> dict[str, float] | None:
-    """highway-env's roundabout-v0 (kinematic cars, no rendering, IDLE action) if installed, else None."""
+    """highway-env's roundabout-v0 (kinematic cars, no rendering, IDLE action) if installed, else None, in
+    interleaved rounds with an mjdrive roundabout holding as many cars (`HIGHWAY_CARS` and the ego; features,
+    default physics step, the ego braking at its yield line)."""
     try:
         import gymnasium as gym
         import highway_env  # noqa: F401  (registers the ids)
@@ -189,11 +212,22 @@ def bench_highway_env(seconds: float = 3.0) -> dict[str, float] | None:
         if terminated or truncated:
             env.reset()
 
-    rate = _rate(go, seconds)
+    ours = suite.load("roundabout", "d120", {"random": 0, "road_users": HIGHWAY_CARS})
+    ours.reset()
+
+    def ours_go():
+        if ours.step(HOLD_ACTION).last():
+            ours.reset()
+
+    rates, ours_rates = [], []
+    for _ in range(ROUNDS):
+        rates.append(_rate(go, seconds / ROUNDS))
+        ours_rates.append(_rate(ours_go, seconds / ROUNDS))
     config = env.unwrapped.config
-    result = {"steps_per_s": rate, "policy_dt": 1.0 / config["policy_frequency"],
+    result = {"steps_per_s": max(rates), "policy_dt": 1.0 / config["policy_frequency"],
               "sim_dt": 1.0 / config["simulation_frequency"], "vehicles": len(env.unwrapped.road.vehicles),
-              "version": getattr(highway_env, "__version__", "?")}
+              "version": getattr(highway_env, "__version__", "?"), "ours_steps_per_s": max(ours_rates),
+              "ours_control_dt": ours.control_timestep(), "ours_cars": 1 + ours.task.traffic.n}
     env.close()
     return result
 
@@ -206,41 +240,53 @@ def run_roundabout_benchmarks(levels=ROUNDABOUT_LEVELS, seconds: float = 3.0, im
         "one thread)",
         "",
         "| task | road users | raw mj_step [steps/s] | raw [sim-s/wall-s] | env features [steps/s] "
-        "| env [sim-s/wall-s] | env/raw | traffic share of step | traffic [ms/step] | env camera [steps/s] "
+        f"| env [sim-s/wall-s] | env/raw | env at {COMPARE_DT * 1e3:g} ms [sim-s/wall-s] "
+        f"| default / {COMPARE_DT * 1e3:g} ms | traffic share of step | traffic [ms/step] | env camera [steps/s] "
         "| camera [sim-s/wall-s] |",
-        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for level in levels:
         r = bench_roundabout(level, seconds, image_size)
         control_dt = r["dt"] * r["n_sub"]
         raw_sim = r["raw_steps_per_s"] * r["dt"]
         env_sim = r["env_steps_per_s"] * control_dt
+        env_2ms_sim = r["env_2ms_steps_per_s"] * control_dt
         lines.append(
             f"| roundabout/{level} | {r['users']} | {r['raw_steps_per_s']:,.0f} | {raw_sim:.1f} "
-            f"| {r['env_steps_per_s']:,.0f} | {env_sim:.1f} | {env_sim / raw_sim:.0%} | {r['traffic_share']:.0%} "
+            f"| {r['env_steps_per_s']:,.0f} | {env_sim:.1f} | {env_sim / raw_sim:.0%} | {env_2ms_sim:.1f} "
+            f"| {env_sim / env_2ms_sim:.2f}x | {r['traffic_share']:.0%} "
             f"| {1e3 * r['traffic_share'] / r['env_steps_per_s']:.2f} | {r['camera_env_steps_per_s']:,.0f} "
             f"| {r['camera_env_steps_per_s'] * control_dt:.1f} |"
         )
     hw = bench_highway_env(seconds) if highway else None
     if hw is not None:
-        lines.append(
-            f"| highway-env {hw['version']} roundabout-v0 | {hw['vehicles']} | - | - | {hw['steps_per_s']:,.0f} "
-            f"| {hw['steps_per_s'] * hw['policy_dt']:.1f} | - | - | - | - | - |"
-        )
+        ours_sim = hw["ours_steps_per_s"] * hw["ours_control_dt"]
+        hw_sim = hw["steps_per_s"] * hw["policy_dt"]
+        lines += [
+            "",
+            "| side by side, equal cars | cars (ego included) | env [steps/s] | env [sim-s/wall-s] "
+            "| mjdrive / highway-env |",
+            "| --- | ---: | ---: | ---: | ---: |",
+            f"| mjdrive roundabout (road_users={HIGHWAY_CARS}, features, {PHYSICS_TIMESTEP * 1e3:g} ms) "
+            f"| {hw['ours_cars']} | {hw['ours_steps_per_s']:,.0f} | {ours_sim:.1f} | {ours_sim / hw_sim:.2f}x |",
+            f"| highway-env {hw['version']} roundabout-v0 | {hw['vehicles']} | {hw['steps_per_s']:,.0f} "
+            f"| {hw_sim:.1f} | - |",
+        ]
     lines += [
         "",
-        f"Roundabout: control 5 Hz (100 physics steps of {r['dt'] * 1e3:.0f} ms), traffic poses written every "
+        f"Roundabout: control 5 Hz ({r['n_sub']} physics steps of {r['dt'] * 1e3:g} ms), traffic poses written every "
         f"0.02 s, traffic decisions every {r['decision']:.1f} s; the ego brakes at its yield line while the "
         f"traffic flows; camera = 4 stacked {image_size}x{image_size} gray frames.",
         "raw: `mj_step` of the same model from the same state (traffic boxes still). env/raw: simulated "
         "seconds per wall second of the env (features observation) over raw physics. traffic share: wall "
-        "time inside `Traffic.advance` (decisions, motion, mocap writes) over the env's wall time. Raw and "
-        f"env are measured in {ROUNDS} interleaved rounds; each figure is the best round (robust to other "
-        "processes on the machine).",
+        "time inside `Traffic.advance` (decisions, motion, mocap writes) over the env's wall time. Raw, env and "
+        f"env at {COMPARE_DT * 1e3:g} ms are measured in {ROUNDS} interleaved rounds; each figure is the best round "
+        "(robust to other processes on the machine).",
     ]
     if hw is not None:
         lines.append(f"highway-env: {1 / hw['policy_dt']:.0f} Hz policy, {1 / hw['sim_dt']:.0f} Hz kinematic "
-                     "simulation, no rendering, IDLE action, in the same process.")
+                     "simulation, no rendering, IDLE action, in the same process, in interleaved rounds with the "
+                     "mjdrive roundabout beside it (best round of each).")
     elif highway:
         lines.append("highway-env is not installed (`pip install mjdrive[bench]` adds it).")
     return "\n".join(lines)
