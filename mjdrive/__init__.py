@@ -17,6 +17,8 @@ XML_DIR = _Path(__file__).resolve().parent / "xml"  # MJCF assets: vehicles/, sc
 
 __version__ = "0.1.0"
 
+from mjdrive.config import ConfigError as ConfigError  # noqa: E402  (a ValueError: bad keyword, name or value)
+
 # Register the gymnasium ids (cheap: entry points are strings, nothing heavy is imported here).
 from mjdrive.envs.registration import register_all as _register_all  # noqa: E402
 

@@ -110,6 +110,9 @@ def cmd_list(args) -> int:
     from mjdrive import suite
     from mjdrive.envs import GYM_IDS
 
+    if args.kwargs == "all":
+        print(suite.kwargs_reference(), end="")
+        return 0
     if args.kwargs:
         domain, task = _split_task(args.kwargs)
         config_class, defaults = suite.task_config(domain, task)
@@ -195,6 +198,8 @@ def cmd_replay(args) -> int:
 def cmd_logs(args) -> int:
     from mjdrive.record.reader import logs_table
 
+    if not any(Path(args.folder).glob("*.mcap*")):
+        raise ValueError(f"no .mcap logs in {args.folder}")
     table = logs_table(args.folder)
     print(table)
     if args.out:
@@ -241,8 +246,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     listing = sub.add_parser("list", help="list tasks, tags and gymnasium ids; or one task's keywords")
-    listing.add_argument("--kwargs", default=None, type=task_name, metavar="DOMAIN/TASK",
-                         help="print the task's keywords: type, default, unit, allowed values")
+    listing.add_argument("--kwargs", default=None, type=lambda text: text if text == "all" else task_name(text),
+                         metavar="DOMAIN/TASK", help="print the task's keywords (type, default, unit, allowed "
+                         "values); 'all': every task's, as markdown")
     listing.set_defaults(func=cmd_list)
 
     run = sub.add_parser("run", help="drive a task with a policy; write videos and a summary")

@@ -107,8 +107,8 @@ def _convert(value: Any, tp: Any, spec: Spec) -> Any:
             except _Invalid as error:
                 reasons.append(str(error))
         bounds = [r for r in reasons if "<" in r or ">" in r]  # the value has a right type but not a right size
-        if bounds or len(reasons) == 1:
-            raise _Invalid((bounds or reasons)[0])
+        if bounds:
+            raise _Invalid(bounds[0])
         kinds = [r.removeprefix("must be ") for r in reasons] + (["None"] if type(None) in args else [])
         raise _Invalid("must be " + ", ".join(kinds[:-1]) + " or " + kinds[-1])
     if tp is bool:

@@ -70,6 +70,23 @@ def task_description(domain_name: str, task_name: str) -> str:
     return (_task_fn(domain_name, task_name).__doc__ or "").strip()
 
 
+def kwargs_reference() -> str:
+    """Markdown of every task's keywords (tasks with the same table share one section); docs/task_kwargs.md
+    is this text (`mjdrive list --kwargs all > docs/task_kwargs.md`; a test keeps them equal)."""
+    sections: dict[str, list[str]] = {}
+    for domain_name, task_name in ALL_TASKS:
+        config_class, defaults = task_config(domain_name, task_name)
+        sections.setdefault(config_class.markdown(defaults), []).append(f"`{domain_name}/{task_name}`")
+    parts = ["# Task keywords", "",
+             "Generated from the tasks' configuration classes by `mjdrive list --kwargs all`; the same checks run "
+             "when a task is made (`suite.load`, `gymnasium.make`, `--task-kwarg`), and a bad value raises "
+             "`mjdrive.ConfigError` naming the keyword, the value and what is allowed. Lists are given as JSON "
+             "on the command line (`--task-kwarg start_noise=[0,0]`), `null` for None."]
+    for table, names in sections.items():
+        parts += ["", "## " + ", ".join(names), "", table]
+    return "\n".join(parts) + "\n"
+
+
 def load(
     domain_name: str,
     task_name: str,

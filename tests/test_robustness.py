@@ -1,0 +1,39 @@
+"""Every bad input of results/robustness.md gives the documented error: a ValueError (ConfigError for task
+keywords) naming what is wrong, or on the command line one line and exit status 2; a checkpoint's pickle
+payload never runs."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+from tools import robustness
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_every_bad_input_gives_a_clear_error():
+    results = robustness.run_all()  # raises if a checkpoint's payload ran
+    assert len(results) >= 60
+    failures = [f"{case.entry} {case.shown}: {outcome.kind}: {outcome.message}"
+                for case, outcome in results if outcome.kind != "error" or case.expect not in outcome.message]
+    assert not failures, "\n".join(failures)
+
+
+def test_the_committed_table_lists_every_case():
+    table = (ROOT / "results" / "robustness.md").read_text()
+    missing = [case.shown for case in robustness.cases() if f"`{case.shown}`" not in table]
+    assert not missing, f"results/robustness.md is stale (python tools/robustness.py --out ...): {missing}"
+    assert "**accepted**" not in table and "**crash**" not in table
+
+
+def test_a_user_mistake_prints_one_line_in_a_real_process(tmp_path):
+    """The command line as a user runs it: one line on stderr, exit status 2, no traceback."""
+    for argv in (["replay", str(tmp_path / "missing.mcap")], ["logs", str(tmp_path)],
+                 ["run", "--task", "waypoints/straight", "--task-kwarg", "time_limit=-5"]):
+        done = subprocess.run([sys.executable, "-m", "mjdrive.cli", *argv], capture_output=True, text=True,
+                              cwd=tmp_path, timeout=120)
+        assert done.returncode == 2, (argv, done.stderr)
+        assert len(done.stderr.strip().splitlines()) == 1 and "Traceback" not in done.stderr, done.stderr
+        assert done.stderr.startswith(f"mjdrive {argv[0]}: error: ")

@@ -1,0 +1,304 @@
+"""Bad inputs at every entry point and the error each gives: the table in results/robustness.md.
+
+    python tools/robustness.py --out results/robustness.md
+
+Each case is what a user could type (task keywords through `suite.load` and `gymnasium.make`, arguments of
+every `mjdrive` subcommand, files given as checkpoints and logs) with a fragment of the error it must give.
+`tests/test_robustness.py` runs every case and fails if one is accepted, raises anything but the documented
+error (a `ValueError`, `mjdrive.ConfigError` for keywords; on the command line one line and exit status 2)
+or no longer names what is wrong.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import os
+import pickle
+import sys
+import tempfile
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+FIXTURE_LOG = ROOT / "tests" / "data" / "waypoints-straight_7_00000.mcap"
+MARKER = "payload_ran"  # the file a malicious checkpoint's payload would create
+
+
+@dataclass(frozen=True)
+class Case:
+    entry: str  # entry point: suite.load, gymnasium.make, env.step, mjdrive SUBCOMMAND, ...
+    shown: str  # the input as the user gave it
+    expect: str  # a fragment of the error message
+    run: Callable[[], object]  # raises the error (or, for the CLI, returns its exit status)
+
+
+@dataclass(frozen=True)
+class Outcome:
+    kind: str  # "error" (the documented kind), "accepted" (no error) or "crash" (anything else)
+    message: str
+
+
+def _load(domain: str, task: str, **kwargs) -> Callable[[], object]:
+    def run():
+        from mjdrive import suite
+
+        return suite.load(domain, task, kwargs)
+
+    return run
+
+
+def _load_env(domain: str, task: str, environment_kwargs: dict) -> Callable[[], object]:
+    def run():
+        from mjdrive import suite
+
+        return suite.load(domain, task, {"random": 0}, environment_kwargs)
+
+    return run
+
+
+def _gym(env_id: str, **kwargs) -> Callable[[], object]:
+    def run():
+        import gymnasium
+
+        import mjdrive  # noqa: F401  (registers the ids)
+
+        return gymnasium.make(env_id, **kwargs)
+
+    return run
+
+
+def _step(action) -> Callable[[], object]:
+    def run():
+        from mjdrive import suite
+
+        env = suite.load("waypoints", "straight", {"random": 0})
+        env.reset()
+        return env.step(action)
+
+    return run
+
+
+def _cli(*argv: str) -> Callable[[], object]:
+    def run():
+        from mjdrive.cli import main
+
+        try:
+            return main(list(argv))
+        except SystemExit as stop:  # argparse's usage errors
+            return stop.code
+
+    return run
+
+
+class _Payload:
+    """A pickle payload that would create MARKER when unpickled (a checkpoint must never run it)."""
+
+    def __reduce__(self):
+        return (Path(MARKER).touch, ())
+
+
+def make_files(folder: Path) -> None:
+    """The bad files the cases refer to (relative names, so that messages do not depend on the folder)."""
+    import torch
+
+    torch.save({"algo": "sac", "state": _Payload()}, folder / "evil.pt")  # a zip checkpoint, as shared ones are
+    (folder / "evil.pkl.pt").write_bytes(pickle.dumps({"algo": "sac", "state": _Payload()}))  # a bare pickle
+    (folder / "notes.pt").write_text("not a checkpoint\n")
+    (folder / "empty.pt").write_bytes(b"")
+    (folder / "folder.pt").mkdir()
+    (folder / "notes.mcap").write_text("not a log\n")
+    (folder / "cut.mcap").write_bytes(FIXTURE_LOG.read_bytes()[:2000])
+    (folder / "empty_logs").mkdir()
+    (folder / "a_file").write_text("x\n")
+
+
+def cases() -> list[Case]:
+    """Every bad input, by entry point."""
+    c = Case
+    out = [
+        # --- suite.load: task keywords -------------------------------------------------------------------
+        c("suite.load", "waypoints/straight time_limit=-5", "time_limit=-5: must be > 0", _load("waypoints", "straight", time_limit=-5)),
+        c("suite.load", "waypoints/straight time_limit=0", "time_limit=0: must be > 0", _load("waypoints", "straight", time_limit=0)),
+        c("suite.load", "waypoints/straight time_limit=nan", "must be a finite number", _load("waypoints", "straight", time_limit=float("nan"))),
+        c("suite.load", "waypoints/straight time_limit='20'", "time_limit='20': must be a number", _load("waypoints", "straight", time_limit="20")),
+        c("suite.load", "waypoints/straight image_size=0", "image_size=0: must be >= 16", _load("waypoints", "straight", image_size=0)),
+        c("suite.load", "waypoints/straight image_size=64.5", "image_size=64.5: must be an integer", _load("waypoints", "straight", image_size=64.5)),
+        c("suite.load", "waypoints/straight waypoint_spacing=0", "waypoint_spacing=0: must be >= 0.5", _load("waypoints", "straight", waypoint_spacing=0)),
+        c("suite.load", "waypoints/straight waypoint_spacing=-1", "waypoint_spacing=-1: must be >= 0.5", _load("waypoints", "straight", waypoint_spacing=-1)),
+        c("suite.load", "waypoints/straight random='abc'", "random='abc': must be an integer", _load("waypoints", "straight", random="abc")),
+        c("suite.load", "waypoints/straight random=-1", "random=-1: must be >= 0", _load("waypoints", "straight", random=-1)),
+        c("suite.load", "waypoints/straight random=2**40", "must be >= 0 and <= 4294967295", _load("waypoints", "straight", random=2**40)),
+        c("suite.load", "waypoints/straight random=True", "random=True: must be an integer", _load("waypoints", "straight", random=True)),
+        c("suite.load", "waypoints/straight observation='lidar'", "must be one of 'features', 'camera'", _load("waypoints", "straight", observation="lidar")),
+        c("suite.load", "waypoints/straight vehicle='truck'", "must be one of 'sedan', 'suv'", _load("waypoints", "straight", vehicle="truck")),
+        c("suite.load", "waypoints/straight buildings='yes'", "buildings='yes': must be true or false", _load("waypoints", "straight", buildings="yes")),
+        c("suite.load", "waypoints/straight start_noise=[1]", "must have 2 elements", _load("waypoints", "straight", start_noise=[1])),
+        c("suite.load", "waypoints/straight start_noise=(-1, 0)", "element 0 (-1) must be >= 0", _load("waypoints", "straight", start_noise=(-1, 0))),
+        c("suite.load", "waypoints/straight visible_waypoints=-1", "visible_waypoints=-1: must be >= 0", _load("waypoints", "straight", visible_waypoints=-1)),
+        c("suite.load", "waypoints/straight physics_dt=0", "physics_dt=0: must be >= 0.0005", _load("waypoints", "straight", physics_dt=0)),
+        c("suite.load", "waypoints/straight physics_dt=0.05", "physics_dt=0.05: must be >= 0.0005 and <= 0.01", _load("waypoints", "straight", physics_dt=0.05)),
+        c("suite.load", "waypoints/straight physics_dt=0.003", "whole multiple of physics_dt=0.003", _load("waypoints", "straight", physics_dt=0.003)),
+        c("suite.load", "waypoints/straight time_limt=20", "unknown keyword 'time_limt' for waypoints/straight (did you mean 'time_limit'?)", _load("waypoints", "straight", time_limt=20)),
+        c("suite.load", "waypoints/straight town_blocks=(2, 2)", "unknown keyword 'town_blocks'", _load("waypoints", "straight", town_blocks=(2, 2))),
+        c("suite.load", "waypoints/random_routes town_blocks=(0, 3)", "element 0 (0) must be >= 1", _load("waypoints", "random_routes", town_blocks=(0, 3))),
+        c("suite.load", "waypoints/random_routes town_blocks=3", "town_blocks=3: must be a list", _load("waypoints", "random_routes", town_blocks=3)),
+        c("suite.load", "roundabout/d120 road_users={'car': -1}", "['car']=-1 must be >= 0", _load("roundabout", "d120", road_users={"car": -1})),
+        c("suite.load", "roundabout/d120 road_users={'truck': 2}", "unknown key 'truck'", _load("roundabout", "d120", road_users={"truck": 2})),
+        c("suite.load", "roundabout/d120 road_users=[3]", "must be a mapping", _load("roundabout", "d120", road_users=[3])),
+        c("suite.load", "roundabout/d120 warmup=-5", "warmup=-5: must be >= 0", _load("roundabout", "d120", warmup=-5)),
+        c("suite.load", "roundabout/d120 lanes=0", "lanes=0: must be >= 1", _load("roundabout", "d120", lanes=0)),
+        c("suite.load", "roundabout/d120 frames=0", "frames=0: must be >= 1", _load("roundabout", "d120", frames=0)),
+        c("suite.load", "roundabout/d120 exits=[4] arms=3", "exits=(4,): must be in 1..3", _load("roundabout", "d120", exits=[4], arms=3)),
+        c("suite.load", "roundabout/d120 exits=[]", "exits=[]: must not be empty", _load("roundabout", "d120", exits=[])),
+        c("suite.load", "roundabout/d120 exits=[1, 1]", "must not repeat an element", _load("roundabout", "d120", exits=[1, 1])),
+        c("suite.load", "roundabout/d120 entries=[7]", "entries=(7,): arms are numbered 0..3", _load("roundabout", "d120", entries=[7])),
+        c("suite.load", "roundabout/d120 radius=6 lanes=4", "leaves an island under 3 m", _load("roundabout", "d120", radius=6, lanes=4)),
+        c("suite.load", "roundabout/d120 destination_offset=60", "must lie inside the arm", _load("roundabout", "d120", destination_offset=60)),
+        c("suite.load", "roundabout/d120 off_route=0", "off_route=0: must be > 0", _load("roundabout", "d120", off_route=0)),
+        c("suite.load", "roundabout/d120 collision_penalty=-1", "collision_penalty=-1: must be >= 0", _load("roundabout", "d120", collision_penalty=-1)),
+        c("suite.load", "roundabout/d120 camera='rear'", "must be one of 'front', 'front_wide'", _load("roundabout", "d120", camera="rear")),
+        c("suite.load", "roundabout/d120 destination_frame='car'", "must be one of 'world', 'ego'", _load("roundabout", "d120", destination_frame="car")),
+        c("suite.load", "roundabout/d120 traffic_config={'min_gap': -1}", "min_gap=-1: must be >= 0.5", _load("roundabout", "d120", traffic_config={"min_gap": -1})),
+        c("suite.load", "roundabout/d120 traffic_config={'min_gp': 3}", "unknown keyword 'min_gp' (did you mean 'min_gap'?)", _load("roundabout", "d120", traffic_config={"min_gp": 3})),
+        c("suite.load", "roundabout/d120 traffic_config={'pedestrian_wait': [9, 1]}", "the minimum must not exceed the maximum", _load("roundabout", "d120", traffic_config={"pedestrian_wait": [9, 1]})),
+        c("suite.load", "roundabout/d120 traffic_config=5", "must be a mapping of TrafficConfig keywords", _load("roundabout", "d120", traffic_config=5)),
+        c("suite.load", "roundabout/d999", "unknown task roundabout/d999", _load("roundabout", "d999")),
+        c("suite.load", "roundabout/d21", "did you mean roundabout/d210?", _load("roundabout", "d21")),
+        c("suite.load", "highway/merge", "unknown domain 'highway'", _load("highway", "merge")),
+        c("suite.load", "environment_kwargs control_timestep=0", "control_timestep=0: must be > 0", _load_env("waypoints", "straight", {"control_timestep": 0})),
+        c("suite.load", "environment_kwargs time_limit=5", "unknown keyword 'time_limit'", _load_env("waypoints", "straight", {"time_limit": 5})),
+        # --- gymnasium.make ----------------------------------------------------------------------------
+        c("gymnasium.make", "mjdrive/Waypoints-Straight-v0 actions='table9'", "unknown action set 'table9'", _gym("mjdrive/Waypoints-Straight-v0", actions="table9")),
+        c("gymnasium.make", "mjdrive/Waypoints-Straight-v0 render_mode='human'", "render_mode must be None or 'rgb_array'", _gym("mjdrive/Waypoints-Straight-v0", render_mode="human")),
+        c("gymnasium.make", "mjdrive/Waypoints-Straight-v0 foo=1", "unknown keyword 'foo'", _gym("mjdrive/Waypoints-Straight-v0", foo=1)),
+        c("gymnasium.make", "mjdrive/Roundabout-D120-v0 time_limit=0", "time_limit=0: must be > 0", _gym("mjdrive/Roundabout-D120-v0", time_limit=0)),
+        c("gymnasium.make", "mjdrive/Roundabout-D120-v0 neighbours=0", "neighbours=0: must be >= 1", _gym("mjdrive/Roundabout-D120-v0", neighbours=0)),
+        # --- env.step -----------------------------------------------------------------------------------
+        c("env.step", "action [nan, 0, 0]", "finite", _step(np.array([np.nan, 0.0, 0.0]))),
+        c("env.step", "action of shape (2,)", "shape (3,)", _step(np.zeros(2))),
+        # --- command line -------------------------------------------------------------------------------
+        c("mjdrive", "mjdrive frobnicate", "invalid choice: 'frobnicate'", _cli("frobnicate")),
+        c("mjdrive list", "mjdrive list --kwargs nope", "expected DOMAIN/TASK", _cli("list", "--kwargs", "nope")),
+        c("mjdrive list", "mjdrive list --kwargs roundabout/d999", "unknown task roundabout/d999", _cli("list", "--kwargs", "roundabout/d999")),
+        c("mjdrive run", "mjdrive run --task nope", "expected DOMAIN/TASK", _cli("run", "--task", "nope")),
+        c("mjdrive run", "mjdrive run --task waypoints/nope", "unknown task waypoints/nope", _cli("run", "--task", "waypoints/nope")),
+        c("mjdrive run", "mjdrive run --episodes 0", "argument --episodes: must be >= 1, got 0", _cli("run", "--episodes", "0")),
+        c("mjdrive run", "mjdrive run --episodes two", "expected an integer, got 'two'", _cli("run", "--episodes", "two")),
+        c("mjdrive run", "mjdrive run --seed -1", "argument --seed: must be in 0..4294967295", _cli("run", "--seed", "-1")),
+        c("mjdrive run", "mjdrive run --policy fast", "argument --policy: invalid choice: 'fast'", _cli("run", "--policy", "fast")),
+        c("mjdrive run", "mjdrive run --record-camera-every -1", "must be >= 0", _cli("run", "--record-camera-every", "-1")),
+        c("mjdrive run", "mjdrive run --record-image-format gif", "invalid choice: 'gif'", _cli("run", "--record-image-format", "gif")),
+        c("mjdrive run", "mjdrive run --task-kwarg time_limit", "--task-kwarg expects KEY=VALUE", _cli("run", "--task-kwarg", "time_limit")),
+        c("mjdrive run", "mjdrive run --task-kwarg time_limt=3", "unknown keyword 'time_limt'", _cli("run", "--task-kwarg", "time_limt=3")),
+        c("mjdrive run", "mjdrive run --task-kwarg random=abc", "random='abc': must be an integer", _cli("run", "--task-kwarg", "random=abc")),
+        c("mjdrive run", "mjdrive run --task-kwarg start_noise=[1,\"a\"]", "element 1 ('a') must be a number", _cli("run", "--task-kwarg", 'start_noise=[1,"a"]')),
+        c("mjdrive replay", "mjdrive replay missing.mcap", "missing.mcap: no such file", _cli("replay", "missing.mcap")),
+        c("mjdrive replay", "mjdrive replay empty_logs (a folder)", "empty_logs is a folder, not a file", _cli("replay", "empty_logs")),
+        c("mjdrive replay", "mjdrive replay notes.mcap (a text file)", "notes.mcap is not a readable MCAP file", _cli("replay", "notes.mcap")),
+        c("mjdrive replay", "mjdrive replay cut.mcap (a truncated log)", "cut.mcap", _cli("replay", "cut.mcap")),
+        c("mjdrive logs", "mjdrive logs nope/", "nope/: no such folder", _cli("logs", "nope/")),
+        c("mjdrive logs", "mjdrive logs a_file", "a_file is a file, not a folder", _cli("logs", "a_file")),
+        c("mjdrive logs", "mjdrive logs empty_logs", "no .mcap logs in empty_logs", _cli("logs", "empty_logs")),
+        c("mjdrive bench", "mjdrive bench --seconds 0", "argument --seconds: must be a finite number > 0", _cli("bench", "--seconds", "0")),
+        c("mjdrive bench", "mjdrive bench --tasks waypoints/nope", "unknown task waypoints/nope", _cli("bench", "--tasks", "waypoints/nope")),
+        c("mjdrive bench", "mjdrive bench --roundabout d999", "invalid choice: 'd999'", _cli("bench", "--roundabout", "d999")),
+        c("mjdrive bench", "mjdrive bench --image-size 4", "argument --image-size: must be in 16..1024", _cli("bench", "--image-size", "4")),
+        c("mjdrive train", "mjdrive train --algo a2c", "argument --algo: invalid choice: 'a2c'", _cli("train", "--algo", "a2c")),
+        c("mjdrive train", "mjdrive train --steps 0", "argument --steps: must be >= 1", _cli("train", "--steps", "0")),
+        c("mjdrive train", "mjdrive train --num-envs 0", "argument --num-envs: must be in 1..1024", _cli("train", "--num-envs", "0")),
+        c("mjdrive train", "mjdrive train --task roundabout/d1", "unknown task roundabout/d1", _cli("train", "--task", "roundabout/d1")),
+        c("mjdrive eval", "mjdrive eval --checkpoint missing.pt", "missing.pt: no such file", _cli("eval", "--checkpoint", "missing.pt")),
+        c("mjdrive eval", "mjdrive eval --checkpoint folder.pt (a folder)", "folder.pt is a folder", _cli("eval", "--checkpoint", "folder.pt")),
+        c("mjdrive eval", "mjdrive eval --checkpoint notes.pt (a text file)", "notes.pt", _cli("eval", "--checkpoint", "notes.pt", "--episodes", "1", "--no-record")),
+        c("mjdrive eval", "mjdrive eval --checkpoint empty.pt (an empty file)", "empty.pt", _cli("eval", "--checkpoint", "empty.pt", "--episodes", "1", "--no-record")),
+        c("mjdrive eval", "mjdrive eval --checkpoint evil.pt (a pickle whose payload runs code)", "evil.pt", _cli("eval", "--checkpoint", "evil.pt", "--episodes", "1", "--no-record")),
+        c("mjdrive eval", "mjdrive eval --checkpoint evil.pkl.pt (a bare pickle whose payload runs code)", "evil.pkl.pt", _cli("eval", "--checkpoint", "evil.pkl.pt", "--episodes", "1", "--no-record")),
+        c("mjdrive eval", "mjdrive eval --episodes 0", "argument --episodes: must be >= 1", _cli("eval", "--checkpoint", "notes.pt", "--episodes", "0")),
+        c("mjdrive ensemble", "mjdrive ensemble evil.pt notes.pt --out e.pt", "evil.pt", _cli("ensemble", "evil.pt", "notes.pt", "--out", "e.pt")),
+        c("mjdrive ensemble", "mjdrive ensemble missing.pt --out e.pt", "missing.pt: no such file", _cli("ensemble", "missing.pt", "--out", "e.pt")),
+    ]  # fmt: skip
+    return out
+
+
+def run_case(case: Case) -> Outcome:
+    """Run one case in the current folder (which must hold `make_files`' files)."""
+    err = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            result = case.run()
+    except ValueError as error:
+        return Outcome("error", " ".join(str(error).split()))
+    except Exception:  # noqa: BLE001  (anything else is a defect the table must show)
+        return Outcome("crash", traceback.format_exc(limit=3))
+    if case.entry.startswith("mjdrive"):
+        lines = [line for line in err.getvalue().splitlines() if line.strip()]
+        if result == 2 and len(lines) == 1 and "Traceback" not in err.getvalue():
+            return Outcome("error", lines[0])
+        return Outcome("crash" if lines else "accepted", f"exit {result}: " + " / ".join(lines)[:300])
+    return Outcome("accepted", repr(result)[:100])
+
+
+def run_all(progress: bool = False) -> list[tuple[Case, Outcome]]:
+    """Every case, run in a fresh temporary folder; also checks that no payload ran."""
+    previous = os.getcwd()
+    all_cases = cases()
+    with tempfile.TemporaryDirectory() as tmp:
+        os.chdir(tmp)
+        try:
+            make_files(Path(tmp))
+            results = []
+            for i, case in enumerate(all_cases, 1):
+                if progress:
+                    print(f"[{i}/{len(all_cases)}] {case.entry}: {case.shown}", file=sys.stderr, flush=True)
+                results.append((case, run_case(case)))
+            if Path(MARKER).exists():
+                raise RuntimeError("a checkpoint's pickle payload ran")
+        finally:
+            os.chdir(previous)
+    return results
+
+
+def markdown(results: list[tuple[Case, Outcome]]) -> str:
+    lines = [
+        "# Bad inputs and the errors they give",
+        "",
+        "Every row is a bad input tried at one entry point and the error mjdrive gives today, produced by",
+        "`python tools/robustness.py --out results/robustness.md`; `tests/test_robustness.py` runs the same cases.",
+        "Python entry points raise `ValueError` (task keywords: its subclass `mjdrive.ConfigError`); the command",
+        "line prints one line on stderr and exits with status 2, without a traceback. A checkpoint whose pickle",
+        "would run code is refused before anything in it runs (the cases check that its payload never ran).",
+        "",
+        f"{len(results)} cases, {sum(o.kind == 'error' for _, o in results)} with a clear error.",
+        "",
+        "| # | entry point | input | error |",
+        "| ---: | --- | --- | --- |",
+    ]
+    for i, (case, outcome) in enumerate(results, 1):
+        text = outcome.message if outcome.kind == "error" else f"**{outcome.kind}**: {outcome.message}"
+        cells = [str(i), case.entry, f"`{case.shown}`", text.replace("|", "\\|").replace("\n", " ")]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", default=None, help="write the markdown table here")
+    args = parser.parse_args(argv)
+    results = run_all(progress=True)
+    table = markdown(results)
+    if args.out:
+        Path(args.out).write_text(table)
+        print(f"wrote {args.out}")
+    else:
+        print(table)
+    return 0 if all(o.kind == "error" for _, o in results) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
