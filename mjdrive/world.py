@@ -22,6 +22,8 @@ ROAD_Z = 0.004  # [m] height of the road surface mesh above the ground plane
 MARKING_Z = 0.008  # [m] height of the marking meshes
 MARKING_WIDTH = 0.15  # [m]
 DASH_ON, DASH_OFF = 3.0, 6.0  # [m] broken-line pattern
+GIVE_WAY_DEPTH = 0.3  # [m] give-way line across a lane: its extent along the lane
+GIVE_WAY_DASH = (0.6, 0.3)  # [m] its dashes and gaps across the lane
 NEAR_CLIP, FAR_CLIP = 0.1, 400.0  # [m] camera clip planes
 OBSTACLE_CONTYPE = 2  # collision bit shared by obstacles, traffic and the ego body (not the ground)
 
@@ -177,6 +179,24 @@ def _add_road_meshes(spec: mujoco.MjSpec, road_map: RoadMap) -> None:
     _add_mesh_geom(spec, "road_areas", areas, JUNCTION_RGBA)
     _add_mesh_geom(spec, "markings", markings, WHITE_RGBA)
     _add_mesh_geom(spec, "crosswalks", crosswalks, CROSSWALK_RGBA)
+    _add_mesh_geom(spec, "give_way_lines", _give_way_marks(road_map), WHITE_RGBA)
+
+
+def _give_way_marks(road_map: RoadMap) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Broken lines across lanes, ending at each give-way position (lane, s) of the map."""
+    parts = []
+    on, off = GIVE_WAY_DASH
+    for lane_id, s in getattr(road_map, "give_way", []):
+        lane = road_map.lanes[lane_id]
+        s1 = min(float(s), lane.length)
+        s0 = max(s1 - GIVE_WAY_DEPTH, 0.0)
+        count = int((lane.width + off) // (on + off))
+        first = -(count * on + (count - 1) * off) / 2  # [m] the dashes centred across the lane
+        for d0 in first + (on + off) * np.arange(count):
+            d = np.array([d0, d0 + on, d0 + on, d0])
+            corners = lane.position(np.array([s0, s0, s1, s1]), d)
+            parts.append(_polygon_fan(corners, MARKING_Z))
+    return parts
 
 
 

@@ -9,9 +9,20 @@ from mjdrive.roads.geometry import Path, fillet, s_curve, wrap_angle
 from mjdrive.roads.junctions import junction, roundabout, roundabout_routes, town
 from mjdrive.roads.lane import Lane, Marking, resample
 from mjdrive.roads.roadmap import Crosswalk, LaneQuery, RoadMap
+from mjdrive.roads.conflicts import ConflictZones, RouteConflicts, conflict_zones
+from mjdrive.roads.ports import ComposedMap, Piece, Port, ScenarioSpan, compose
+from mjdrive.roads.urban import (FOLLOW, TacticalTrajectory, UrbanRoute, concatenated, plan_route, route_through,
+                                 tactical_trajectory, urban_route)
+from mjdrive.roads.urban_params import CrossroadParams, MergeParams, OvertakingRoadParams, RoundaboutParams
+from mjdrive.roads.urban_pieces import crossroad, merge_road, overtaking_road, roundabout_piece
 
 __all__ = [
     "Crosswalk", "Lane", "LaneQuery", "Marking", "Path", "RoadMap",
     "crafted_routes", "curve", "fillet", "junction", "merge", "resample", "roundabout", "roundabout_routes",
     "s_curve", "spawn_points", "straight", "town", "two_lane_road", "wrap_angle",
+    # study 002: composable pieces, routes, tactical trajectory, conflict zones
+    "FOLLOW", "ComposedMap", "ConflictZones", "CrossroadParams", "MergeParams", "OvertakingRoadParams", "Piece",
+    "Port", "RoundaboutParams", "RouteConflicts", "ScenarioSpan", "TacticalTrajectory", "UrbanRoute", "compose",
+    "concatenated", "conflict_zones", "crossroad", "merge_road", "overtaking_road", "plan_route",
+    "roundabout_piece", "route_through", "tactical_trajectory", "urban_route",
 ]

@@ -39,6 +39,7 @@ class Lane:
     speed_limit: float = 30 / 3.6  # [m/s]
     name: str = ""
     in_junction: bool = False  # connector inside a junction / roundabout entry or exit: no markings
+    priority: int = 0  # right-of-way rank where lanes cross or merge: the lower rank yields
     s: np.ndarray = field(init=False, repr=False)  # (N,) [m] arc length at the vertices
     length: float = field(init=False)  # [m]
     seg_length: np.ndarray = field(init=False, repr=False)  # (N-1,) [m]

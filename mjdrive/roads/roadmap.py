@@ -133,6 +133,7 @@ class RoadMap:
         self.right_neighbour: list[int | None] = []  # same-direction lane directly to the right
         self.areas: list[np.ndarray] = []  # convex polygons (K,2) [m] of paved area outside lane strips
         self.crosswalks: list[Crosswalk] = []
+        self.give_way: list[tuple[int, float]] = []  # give-way lines across lanes: (lane id, s [m])
         self._names: dict[str, int] = {}
         self._frozen: _Frozen | None = None
 
@@ -185,7 +186,7 @@ class RoadMap:
 
         for lane in other.lanes:
             self.add_lane(Lane(tf(lane.centre), lane.width, lane.left_marking, lane.right_marking,
-                               lane.speed_limit, prefix + lane.name, lane.in_junction))
+                               lane.speed_limit, prefix + lane.name, lane.in_junction, lane.priority))
         for i in range(len(other.lanes)):
             self.successors[base + i] = [base + j for j in other.successors[i]]
             ln, rn = other.left_neighbour[i], other.right_neighbour[i]
@@ -195,6 +196,7 @@ class RoadMap:
             self.add_area(tf(poly))
         for cw in other.crosswalks:
             self.crosswalks.append(Crosswalk(tf(cw.centre), cw.heading + rotation, cw.length, cw.width))
+        self.give_way.extend((base + lane, s) for lane, s in other.give_way)
         return base
 
     def freeze(self) -> RoadMap:

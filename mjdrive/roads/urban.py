@@ -1,0 +1,175 @@
+"""Study 002's strategy level on a composed map (§4.1): the global route (Dijkstra over the lane graph
+through each piece's required lanes) and the tactical trajectory (where each scenario starts and ends along
+the route), plus the concatenated map of Fig. 8: roundabout -> two-lane road -> crossroad -> merge.
+"""
+
+from __future__ import annotations
+
+import bisect
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from mjdrive.roads.conflicts import ConflictZones, RouteConflicts, conflict_zones
+from mjdrive.roads.lane import Lane
+from mjdrive.roads.ports import SCENARIOS, ComposedMap, Piece, compose
+from mjdrive.roads.roadmap import RoadMap
+from mjdrive.roads.urban_params import (CrossroadParams, MergeParams, OvertakingRoadParams, RoundaboutParams,
+                                        check)
+from mjdrive.roads.urban_pieces import crossroad, merge_road, overtaking_road, roundabout_piece
+
+FOLLOW = "follow"  # the scenario outside every interval of the tactical trajectory ("Follow Path")
+
+
+@dataclass(frozen=True)
+class TacticalTrajectory:
+    """Scenario intervals (name, s_start [m], s_end [m]) along the route polyline, ordered and disjoint."""
+
+    intervals: tuple[tuple[str, float, float], ...]
+
+    def __post_init__(self) -> None:
+        last = -np.inf
+        for name, s0, s1 in self.intervals:
+            check("scenario", name, name in SCENARIOS, f"one of {SCENARIOS}")
+            check("interval", (name, s0, s1), last <= s0 < s1, "s_start < s_end, after the previous interval")
+            last = s1
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Scenario names in route order."""
+        return tuple(name for name, _, _ in self.intervals)
+
+    def interval(self, name: str) -> tuple[float, float]:
+        """(s_start, s_end) [m] of the first interval called `name`; KeyError if none."""
+        for n, s0, s1 in self.intervals:
+            if n == name:
+                return s0, s1
+        raise KeyError(f"no scenario {name!r} in {self.names}")
+
+    def scenario_at(self, s: float) -> str:
+        """The scenario at route arc length s [m] (intervals are [s_start, s_end)); FOLLOW outside them."""
+        k = bisect.bisect_right([s0 for _, s0, _ in self.intervals], s) - 1
+        if k >= 0 and s < self.intervals[k][2]:
+            return self.intervals[k][0]
+        return FOLLOW
+
+
+@dataclass(frozen=True)
+class UrbanRoute:
+    """A composed map with the ego's route and everything the tasks, agents and logs read."""
+
+    composed: ComposedMap
+    route: tuple[int, ...]  # lane ids, start to goal
+    polyline: np.ndarray  # (M, 2) [m] route centre line
+    tactical: TacticalTrajectory
+    conflicts: ConflictZones  # the whole map's table
+    route_conflicts: RouteConflicts  # the zones on the route
+
+    @property
+    def road_map(self) -> RoadMap:
+        """The composed map."""
+        return self.composed.road_map
+
+    @property
+    def length(self) -> float:
+        """Route length [m] along the polyline."""
+        return float(np.hypot(*np.diff(self.polyline, axis=0).T).sum())
+
+    def route_lane(self) -> Lane:
+        """The route polyline as a Lane (its lane frame is the route's path frame)."""
+        return Lane(self.polyline, name="route")
+
+
+def route_offsets(road_map: RoadMap, route: Sequence[int]) -> np.ndarray:
+    """Arc length [m] along the route polyline where each route lane starts (a lane change, consecutive
+    neighbours, keeps the arc length)."""
+    out = np.zeros(len(route))
+    for k in range(1, len(route)):
+        joined = route[k] in road_map.successors[route[k - 1]]
+        out[k] = out[k - 1] + (road_map.lanes[route[k - 1]].length if joined else 0.0)
+    return out
+
+
+def plan_route(road_map: RoadMap, checkpoints: Sequence[int]) -> list[int]:
+    """Dijkstra (`RoadMap.shortest_route`) from each checkpoint lane to the next, joined: the route keeps
+    its lanes where it can, and changes lane only if a checkpoint cannot be reached otherwise."""
+    check("checkpoints", list(checkpoints), len(checkpoints) >= 2, "at least a start and a goal lane")
+    route = [checkpoints[0]]
+    for a, b in zip(checkpoints[:-1], checkpoints[1:], strict=True):
+        if a == b:
+            continue
+        try:
+            leg = road_map.shortest_route(a, b, allow_lane_change=False)
+        except ValueError:
+            leg = road_map.shortest_route(a, b, allow_lane_change=True)
+        route.extend(leg[1:])
+    return route
+
+
+def tactical_trajectory(composed: ComposedMap, route: Sequence[int]) -> TacticalTrajectory:
+    """Each piece's scenario spans located on the route: from the first route lane in the span's `start`
+    to the first later route lane in its `end`; spans the route misses are left out."""
+    offsets = route_offsets(composed.road_map, route)
+    intervals = []
+    for piece in composed.pieces:
+        for span in piece.scenarios:
+            start, end = dict(span.start), dict(span.end)
+            k0 = next((k for k, lane in enumerate(route) if lane in start), None)
+            if k0 is None:
+                continue
+            k1 = next((k for k in range(k0, len(route)) if route[k] in end), None)
+            if k1 is None:
+                continue
+            s0, s1 = offsets[k0] + start[route[k0]], offsets[k1] + end[route[k1]]
+            if s1 > s0:
+                intervals.append((span.name, float(s0), float(s1)))
+    intervals.sort(key=lambda row: row[1])
+    return TacticalTrajectory(tuple(intervals))
+
+
+def route_through(composed: ComposedMap) -> UrbanRoute:
+    """The ego's route through a composed map (from its start lane via every piece's `via` lanes to its
+    goal lane), the tactical trajectory and the conflict zones."""
+    rm = composed.road_map
+    checkpoints = [composed.start_lane] + [i for piece in composed.pieces for i in piece.via] + [composed.goal_lane]
+    route = plan_route(rm, checkpoints)
+    zones = conflict_zones(rm)
+    polyline = rm.route_polyline(route)
+    polyline.setflags(write=False)
+    return UrbanRoute(composed, tuple(route), polyline, tactical_trajectory(composed, route), zones,
+                      zones.on_route(rm, route))
+
+
+def _params(cls, value):
+    if value is None or isinstance(value, cls):
+        return value or cls()
+    check(cls.__name__, value, isinstance(value, dict), f"a {cls.__name__} or a dict of its fields")
+    return cls.from_dict(value)
+
+
+def concatenated(
+    roundabout: RoundaboutParams | dict | None = None,
+    road: OvertakingRoadParams | dict | None = None,
+    junction: CrossroadParams | dict | None = None,
+    merge: MergeParams | dict | None = None,
+    order: Sequence[str] = ("roundabout", "road", "crossroad", "merge"),
+) -> ComposedMap:
+    """The pieces of Fig. 8 chained in `order` (names "roundabout", "road", "crossroad", "merge"; each at
+    most once), built from their parameters (dataclasses or dicts of their fields)."""
+    builders = {"roundabout": lambda: roundabout_piece(_params(RoundaboutParams, roundabout)),
+                "road": lambda: overtaking_road(_params(OvertakingRoadParams, road)),
+                "crossroad": lambda: crossroad(_params(CrossroadParams, junction)),
+                "merge": lambda: merge_road(_params(MergeParams, merge))}
+    names = list(order)
+    ok = bool(names) and len(set(names)) == len(names) and set(names) <= set(builders)
+    check("order", tuple(order), ok, f"distinct names from {tuple(builders)}")
+    pieces: list[Piece] = [builders[name]() for name in names]
+    return compose(pieces, name="urban")
+
+
+def urban_route(**kwargs) -> UrbanRoute:
+    """`route_through(concatenated(**kwargs))`: the study-002 map of Fig. 8 with the ego's route (enter the
+    roundabout from the west, leave east; keep right on the two-lane road; cross the minor road at the
+    crossroad; join the main road from the right), the tactical trajectory and the conflict zones."""
+    return route_through(concatenated(**kwargs))
