@@ -23,6 +23,8 @@ from mjdrive.roads.geometry import wrap_angle
 from mjdrive.roads.roadmap import RoadMap
 
 PORT_TOLERANCE = 1e-6  # [m] largest gap between joined lane ends
+OVERLAP_STEP = 1.0  # [m] spacing of the lane points checked against the pieces placed before
+END_CLEARANCE = 0.5  # [m] lane points this close to a lane end are not checked (they touch the port)
 SCENARIOS = ("roundabout", "lane_change", "crossroad", "merge")  # scenario names of the tactical trajectory
 
 
@@ -177,7 +179,29 @@ def compose(pieces: Sequence[Piece], name: str = "composed") -> ComposedMap:
             rotation, offset = 0.0, np.zeros(2)
         else:
             rotation, offset = transform_to(piece.entry_port, placed[-1].exit_port.pose)
+        before = (len(rm.lanes), len(rm.areas))
         placed.append(place(rm, piece, rotation, offset, prefix + "/"))
+        if k:
+            _check_clear(rm, *before, piece.name)
         if k:
             join(rm, placed[-2].exit_port, placed[-1].entry_port)
     return ComposedMap(rm.freeze(), placed)
+
+
+def _check_clear(rm: RoadMap, first: int, first_area: int, name: str) -> None:
+    """ValueError if a lane from id `first` on runs over the lanes before it or areas before `first_area`."""
+    pts = []
+    for lane in rm.lanes[first:]:
+        s = np.arange(END_CLEARANCE, lane.length - END_CLEARANCE, OVERLAP_STEP)
+        pts.append(lane.position(s).reshape(-1, 2))
+    earlier = RoadMap("earlier")
+    for lane in rm.lanes[:first]:
+        earlier.add_lane(lane)
+    for area in rm.areas[:first_area]:
+        earlier.add_area(area)
+    pts = np.vstack(pts)
+    hit = earlier.on_road(pts)
+    if np.any(hit):
+        x, y = pts[np.argmax(hit)]
+        raise ValueError(f"piece {name!r} overlaps the pieces placed before it at ({x:.1f}, {y:.1f}) m; "
+                         "allowed: pieces that meet only at their ports (change lengths or angles)")
