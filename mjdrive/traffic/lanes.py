@@ -1,4 +1,4 @@
-"""Build-time tables of a RoadMap for `mjdrive.traffic`: every lane polyline in flat arrays, successors,
+"""Build-time tables of a RoadMap for traffic: every lane polyline in flat arrays, successors,
 same-direction neighbours, merges (where entering lanes yield), crosswalk crossings and spawn points.
 
 Everything here is computed once per map (Python loops over lanes and crosswalks are fine at build time);

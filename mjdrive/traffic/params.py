@@ -1,0 +1,117 @@
+"""Road-user kinds, behaviour constants (TrafficConfig), the ego as traffic sees it, and slot helpers."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from mjdrive.config import Config, ConfigError, param
+from mjdrive.world import TrafficSlot
+
+PATH = 4  # lanes held in each vehicle's planned path (the current one and the next three)
+HIDDEN_Z = -50.0  # [m] where inactive slots wait (below the ground, never seen, never touched)
+N_TRACKS = 3  # pedestrian tracks per crosswalk
+
+
+@dataclass(frozen=True)
+class RoadUserType:
+    """A kind of road user: box half sizes [m], colour, desired speed range [m/s] (walking speed for
+    pedestrians) and IDM parameters: max acceleration a [m/s^2], comfortable deceleration b [m/s^2],
+    time headway T [s]; preferred lateral offset range in the lane [m] (> 0 left)."""
+
+    name: str
+    half_size: tuple[float, float, float]
+    rgba: tuple[float, float, float, float]
+    speed: tuple[float, float]
+    accel: float = 1.5
+    decel: float = 2.5
+    headway: float = 1.0
+    lateral: tuple[float, float] = (0.0, 0.0)
+
+    @property
+    def slot(self) -> TrafficSlot:
+        return TrafficSlot(self.name, self.half_size, self.rgba)
+
+    @property
+    def is_vehicle(self) -> bool:
+        return self.name != "pedestrian"
+
+
+ROAD_USER_TYPES: dict[str, RoadUserType] = {
+    "car": RoadUserType("car", (2.25, 0.9, 0.75), (0.75, 0.15, 0.12, 1.0), (6.5, 8.33), 1.5, 2.5, 1.0,
+                        (-0.2, 0.2)),
+    "motorcycle": RoadUserType("motorcycle", (1.1, 0.4, 0.7), (0.15, 0.15, 0.18, 1.0), (7.0, 8.33), 2.5, 3.0,
+                               0.8, (-0.6, 0.6)),
+    "bicycle": RoadUserType("bicycle", (0.9, 0.3, 0.85), (0.95, 0.75, 0.1, 1.0), (3.5, 5.5), 1.0, 2.0, 1.0,
+                            (-0.9, -0.8)),
+    "pedestrian": RoadUserType("pedestrian", (0.25, 0.3, 0.88), (0.2, 0.35, 0.75, 1.0), (1.1, 1.6)),
+}  # fmt: skip
+KIND_NAMES = tuple(ROAD_USER_TYPES)
+KIND_INDEX = {name: i for i, name in enumerate(KIND_NAMES)}
+
+
+@dataclass(frozen=True)
+class TrafficConfig(Config):
+    """Behaviour constants shared by every road user (validated; `TrafficConfig.from_dict` takes a dict)."""
+
+    min_gap: float = param(2.5, "IDM s0: the study's safe distance to the vehicle ahead", "m", ge=0.5, le=20.0)
+    stop_gap: float = param(0.5, "IDM s0 in front of a stop line", "m", ge=0.0, le=10.0)
+    max_decel: float = param(8.0, "emergency braking limit", "m/s^2", gt=0.0, le=15.0)
+    lateral_accel: float = param(2.0, "curve speed: v <= sqrt(lateral_accel / curvature)", "m/s^2", gt=0.0, le=10.0)
+    accept_gap: float = param(3.5, "an entering vehicle goes if no priority vehicle reaches the merge sooner", "s",
+                              ge=0.0, le=20.0)
+    merge_clearance: float = param(5.0, "... and none is nearer than this (bumper to merge point)", "m",
+                                   ge=0.0, le=50.0)
+    merge_speed: float = param(3.0, "slower circulating vehicles count as this fast in the gap check", "m/s",
+                               ge=0.0, le=20.0)
+    yield_speed: float = param(2.5, "entering vehicles reach their yield line no faster than this", "m/s",
+                               gt=0.0, le=20.0)
+    corridor_range: float = param(25.0, "how far ahead the corridor check looks", "m", gt=0.0, le=100.0)
+    corridor_margin: float = param(0.3, "lateral margin of the corridor", "m", ge=0.0, le=3.0)
+    lane_change_rate: tuple[float, float] = param((0.5, 0.5), "lane changes to the right, to the left neighbour",
+                                                  "1/s", ge=0.0, le=10.0)
+    lane_change_length: float = param(15.0, "distance over which a lane change moves across", "m", gt=1.0, le=100.0)
+    spawn_clear: float = param(14.0, "a source spawns only if nothing is this close to its start", "m",
+                               ge=0.0, le=100.0)
+    crosswalk_margin: float = param(1.0, "vehicles stop this far before a crosswalk / a pedestrian's band", "m",
+                                    ge=0.0, le=10.0)
+    kerb: float = param(0.9, "where pedestrians wait, beyond the end of the crosswalk", "m", ge=0.0, le=5.0)
+    pedestrian_wait: tuple[float, float] = param((2.0, 10.0), "wait at the kerb before looking for a gap "
+                                                 "(uniform, min and max)", "s", ge=0.0, le=120.0)
+    respawn: bool = param(True, "vehicles that left the map re-enter at the sources")
+    decision_period: float = param(0.6, "behaviour updates (about a driver's reaction time)", "s", gt=0.0, le=5.0)
+    substep: float = param(0.02, "pose resolution (mocap written at this period)", "s", gt=0.0, le=0.2)
+
+    def check(self) -> None:
+        if self.pedestrian_wait[0] > self.pedestrian_wait[1]:
+            raise ConfigError(f"pedestrian_wait={self.pedestrian_wait}: the minimum must not exceed the maximum")
+
+
+@dataclass
+class EgoState:
+    """The ego as traffic sees it: pose [m, m, rad], speed [m/s], size [m], and optionally its place in
+    the lane graph: `path` (lane ids from its current lane on, -1 padded) and `s` [m] along path[0]."""
+
+    x: float
+    y: float
+    yaw: float
+    speed: float
+    length: float
+    width: float
+    path: np.ndarray | None = None
+    s: float = 0.0
+
+
+def counts_to_kinds(counts: dict[str, int]) -> list[str]:
+    """Slot kinds from counts by kind, vehicles first in ROAD_USER_TYPES order, e.g. {"car": 2, ...}."""
+    unknown = set(counts) - set(ROAD_USER_TYPES)
+    if unknown:
+        raise ValueError(f"unknown road-user kinds {sorted(unknown)}; valid: {', '.join(ROAD_USER_TYPES)}")
+    return [name for name in ROAD_USER_TYPES for _ in range(int(counts.get(name, 0)))]
+
+
+def slots(kinds: Sequence[str]) -> list[TrafficSlot]:
+    """The world.TrafficSlot of each kind (for `world.build(traffic=...)`)."""
+    return [ROAD_USER_TYPES[k].slot for k in kinds]
