@@ -195,7 +195,8 @@ def test_crossroad_conflicts_minor_road_yields_to_main_road():
     rm = piece.road_map
     cz = roads.conflict_zones(rm)
     rows = list(range(len(cz)))
-    assert rows and all(rm.lanes[a].in_junction and rm.lanes[b].in_junction for a, b in zip(cz.lane_a, cz.lane_b))
+    assert rows
+    assert all(rm.lanes[a].in_junction and rm.lanes[b].in_junction for a, b in zip(cz.lane_a, cz.lane_b, strict=True))
     minor_vs_main = 0
     for z in rows:
         a, b = rm.lanes[cz.lane_a[z]].name, rm.lanes[cz.lane_b[z]].name

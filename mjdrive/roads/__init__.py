@@ -5,14 +5,22 @@ offsets d > 0 to the left of the direction of travel.
 """
 
 from mjdrive.roads.builders import crafted_routes, curve, merge, spawn_points, straight, two_lane_road
+from mjdrive.roads.conflicts import ConflictZones, RouteConflicts, conflict_zones
 from mjdrive.roads.geometry import Path, fillet, s_curve, wrap_angle
 from mjdrive.roads.junctions import junction, roundabout, roundabout_routes, town
 from mjdrive.roads.lane import Lane, Marking, resample
-from mjdrive.roads.roadmap import Crosswalk, LaneQuery, RoadMap
-from mjdrive.roads.conflicts import ConflictZones, RouteConflicts, conflict_zones
 from mjdrive.roads.ports import ComposedMap, Piece, Port, ScenarioSpan, compose
-from mjdrive.roads.urban import (FOLLOW, TacticalTrajectory, UrbanRoute, concatenated, plan_route, route_through,
-                                 tactical_trajectory, urban_route)
+from mjdrive.roads.roadmap import Crosswalk, LaneQuery, RoadMap
+from mjdrive.roads.urban import (
+    FOLLOW,
+    TacticalTrajectory,
+    UrbanRoute,
+    concatenated,
+    plan_route,
+    route_through,
+    tactical_trajectory,
+    urban_route,
+)
 from mjdrive.roads.urban_params import CrossroadParams, MergeParams, OvertakingRoadParams, RoundaboutParams
 from mjdrive.roads.urban_pieces import crossroad, merge_road, overtaking_road, roundabout_piece
 

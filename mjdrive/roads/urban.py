@@ -15,8 +15,7 @@ from mjdrive.roads.conflicts import ConflictZones, RouteConflicts, conflict_zone
 from mjdrive.roads.lane import Lane
 from mjdrive.roads.ports import SCENARIOS, ComposedMap, Piece, compose
 from mjdrive.roads.roadmap import RoadMap
-from mjdrive.roads.urban_params import (CrossroadParams, MergeParams, OvertakingRoadParams, RoundaboutParams,
-                                        check)
+from mjdrive.roads.urban_params import CrossroadParams, MergeParams, OvertakingRoadParams, RoundaboutParams, check
 from mjdrive.roads.urban_pieces import crossroad, merge_road, overtaking_road, roundabout_piece
 
 FOLLOW = "follow"  # the scenario outside every interval of the tactical trajectory ("Follow Path")

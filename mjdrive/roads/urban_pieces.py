@@ -28,8 +28,7 @@ from mjdrive.roads.lane import Lane, Marking
 from mjdrive.roads.pieces import STRAIGHT_TOLERANCE, Arm, add_connectors, add_road, connector
 from mjdrive.roads.ports import Piece, Port, ScenarioSpan
 from mjdrive.roads.roadmap import RoadMap
-from mjdrive.roads.urban_params import (CrossroadParams, MergeParams, OvertakingRoadParams,
-                                        RoundaboutParams, check)
+from mjdrive.roads.urban_params import CrossroadParams, MergeParams, OvertakingRoadParams, RoundaboutParams, check
 
 PRIORITY_MAJOR = 2  # main road, circulating lanes
 PRIORITY_MINOR = 0  # minor road, roundabout entries, merging lanes
