@@ -336,6 +336,8 @@ class CheckpointError(ValueError):
 # on import (tensordict, torch.distributed). mjdrive's checkpoints hold only tensors and plain data, so it is
 # empty; a type listed here must be data only, never a callable that runs code when unpickled.
 CHECKPOINT_SAFE_GLOBALS: tuple = ()
+TORCH_ZIP_MAGIC = b"PK\x03\x04"  # torch.save's format: a zip archive
+PICKLE_PROTO = b"\x80"  # the first byte of a pickle of protocol 2 or later (torch's legacy format)
 PLAIN_TYPES = (str, int, float, bool, type(None))
 
 
@@ -435,6 +437,14 @@ def read_checkpoint_file(path: str | Path) -> Any:
     if path.stat().st_size == 0:
         raise CheckpointError(f"checkpoint {path} is empty (0 bytes)")
     try:
+        with open(path, "rb") as file:
+            head = file.read(len(TORCH_ZIP_MAGIC))
+    except OSError as error:
+        raise CheckpointError(f"checkpoint {path} cannot be read ({type(error).__name__}: {error.strerror})") from None
+    if head != TORCH_ZIP_MAGIC and head[:1] != PICKLE_PROTO:
+        raise CheckpointError(f"checkpoint {path} is not a torch file (it starts with {head!r}, neither a zip "
+                              "archive nor a pickle)")
+    try:
         with warnings.catch_warnings(), _only_safe_globals(CHECKPOINT_SAFE_GLOBALS):
             warnings.simplefilter("ignore")  # e.g. torch's pickle-protocol notice: the error below says it all
             return torch.load(path, map_location="cpu", weights_only=True)
@@ -446,8 +456,9 @@ def read_checkpoint_file(path: str | Path) -> Any:
         raise CheckpointError(f"checkpoint {path} is corrupt or not a torch file "
                               f"(UnpicklingError: {_one_line(error)})") from None
     except Exception as error:  # truncated file, not a torch file, unreadable, ...
+        detail = _one_line(str(error).split(". ")[0]) or "no detail"  # torch's first sentence says what broke
         raise CheckpointError(f"checkpoint {path} is corrupt or not a torch file ({type(error).__name__}: "
-                              f"{_one_line(error) or 'no detail'})") from None
+                              f"{detail})") from None
 
 
 CHECKPOINT_FIELDS = {"algo": str, "config": dict, "state": dict, "step": int}
@@ -515,7 +526,8 @@ class Run:
     def __init__(self, out: str | Path, config: dict, total_steps: int, start_step: int = 0,
                  start_episode: int = 0, progress: bool = True, tensorboard: bool = True):
         import yaml
-        from tqdm import tqdm
+
+        from mjdrive.progress import Progress
 
         self.out = Path(out)
         self.out.mkdir(parents=True, exist_ok=True)
@@ -546,8 +558,8 @@ class Run:
         self.recent: list[float] = []
         self.latest: dict[str, float] = {}  # last value of every scalar (written to scalars.json at close)
         self.start_time = time.perf_counter()
-        self.bar = tqdm(total=self.total_steps, initial=self.step, unit="step", disable=not progress,
-                        dynamic_ncols=True, desc=config.get("algo", ""))
+        self.bar = Progress(total=self.total_steps, initial=self.step, unit="step", disable=not progress,
+                            desc=f"{config.get('algo', 'train')} (env steps)")
 
     def add_steps(self, n: int, final_infos: list[dict | None] | None = None) -> None:
         """Count `n` env steps and log the episodes that ended (BatchedEnv's `info["final_info"]`)."""
@@ -571,7 +583,8 @@ class Run:
         if any(final is not None for final in final_infos or []):
             self._csv_file.flush()  # a killed run keeps every ended episode
         if self.recent:
-            self.bar.set_postfix(ep=self.episode, ret20=f"{np.mean(self.recent):.0f}", refresh=False)
+            self.bar.set_postfix(episodes=self.episode, mean_return_last_20=f"{np.mean(self.recent):.0f}",
+                                 refresh=False)
 
     def scalar(self, name: str, value: float) -> None:
         self.latest[name] = float(value)

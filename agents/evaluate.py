@@ -76,7 +76,8 @@ def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None
     With `record_dir`, every episode is also written there as an MCAP log (`mjdrive replay`/`logs`).
     `progress`: the label of a tqdm bar over the episodes (on stderr); None: no bar."""
     import torch
-    from tqdm import tqdm
+
+    from mjdrive.progress import Progress
 
     agent, payload = load_agent(checkpoint)
     config = payload["config"]
@@ -93,8 +94,7 @@ def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None
         env = RecordEpisodes(env, record_dir)
     rows = []
     start = time.perf_counter()
-    for episode in tqdm(range(episodes), desc=progress, unit="episode", disable=progress is None,
-                        dynamic_ncols=True):
+    for episode in Progress(range(episodes), desc=progress, unit="episode", disable=progress is None):
         obs, info = env.reset(seed=seed + episode)
         if not deterministic:
             torch.manual_seed(seed + episode)  # sampled actions are reproducible per episode too

@@ -91,6 +91,10 @@ def train(config: dict, run: Run, resume_state: dict | None = None) -> None:
     runner.alg.update = update_and_keep_losses
     per_iteration = env.num_envs * cfg["num_steps_per_env"]
     iterations = math.ceil((run.total_steps - run.step) / per_iteration)
+    if run.step + iterations * per_iteration != run.total_steps:  # PPO learns from whole rollouts only
+        print(f"PPO collects rollouts of {env.num_envs} envs x {cfg['num_steps_per_env']} steps = {per_iteration}: "
+              f"training for {run.step + iterations * per_iteration:,} env steps (asked {run.total_steps:,})",
+              flush=True)
     for _ in range(iterations):
         runner.learn(1)
         run.add_steps(per_iteration, env.completed)

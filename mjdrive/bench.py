@@ -13,6 +13,7 @@ side with an mjdrive roundabout holding as many cars (the ego and four others, a
 
 from __future__ import annotations
 
+import importlib.util
 import platform
 import time
 from collections.abc import Callable
@@ -29,6 +30,20 @@ ROUNDABOUT_LEVELS = ("d120", "d140", "d160", "d210")
 ROUNDS = 5  # interleaved measurement rounds per task (the best of each is kept)
 COMPARE_DT = 0.002  # [s] the physics step the default is compared with
 HIGHWAY_CARS = {"car": 4}  # road users of the roundabout run beside highway-env's roundabout-v0 (ego + 4 cars)
+# progress units per benchmark: the envs' set-up, then each timed measurement
+TASK_PARTS = 1 + 4 * ROUNDS
+ROUNDABOUT_PARTS = 1 + 3 * ROUNDS + 1
+HIGHWAY_PARTS = 1 + 2 * ROUNDS
+
+
+def _no_tick(label: str) -> None:
+    """A `tick` that shows nothing."""
+
+
+def bench_parts(tasks: list[str], levels: list[str], highway: bool) -> int:
+    """Progress units of a `mjdrive bench` run (for the bar's total)."""
+    highway = highway and bool(levels) and importlib.util.find_spec("highway_env") is not None
+    return len(tasks) * TASK_PARTS + len(levels) * ROUNDABOUT_PARTS + (HIGHWAY_PARTS if highway else 0)
 
 
 def _rate(step: Callable[[], None], seconds: float) -> float:
@@ -44,8 +59,10 @@ def _rate(step: Callable[[], None], seconds: float) -> float:
             return calls / elapsed
 
 
-def bench_task(name: str, seconds: float = 3.0, image_size: int = 128) -> dict[str, float]:
-    """Raw physics, env (features) and env (camera) throughput of one task, in one process."""
+def bench_task(name: str, seconds: float = 3.0, image_size: int = 128,
+               tick: Callable[[str], None] = _no_tick) -> dict[str, float]:
+    """Raw physics, env (features) and env (camera) throughput of one task, in one process. `tick(label)`
+    is called after each of its `TASK_PARTS` parts (progress)."""
     domain, task = name.split("/")
     env = suite.load(domain, task, {"random": 0})
     model, dt = env.physics.model.ptr, env.physics.timestep()
@@ -82,6 +99,7 @@ def bench_task(name: str, seconds: float = 3.0, image_size: int = 128) -> dict[s
     camera_env.task.render_camera = timed_render
     env_2ms = suite.load(domain, task, {"random": 0, "physics_dt": COMPARE_DT})
     env_2ms.reset()
+    tick(f"{name}: envs built")
     measurements = {
         "raw_steps_per_s": (raw, n_sub),
         "env_steps_per_s": (env_step(env), 1),
@@ -96,6 +114,7 @@ def bench_task(name: str, seconds: float = 3.0, image_size: int = 128) -> dict[s
         for key, (step, scale) in measurements.items():
             render_time[:] = [0.0, 0]
             rate = _rate(step, seconds / ROUNDS) * scale
+            tick(f"{name}: {key}")
             if rate > result[key]:
                 result[key] = rate
                 if key == "camera_env_steps_per_s":  # the render time of the round kept
@@ -105,8 +124,9 @@ def bench_task(name: str, seconds: float = 3.0, image_size: int = 128) -> dict[s
     return result
 
 
-def run_benchmarks(tasks: list[str], seconds: float = 3.0, image_size: int = 128) -> str:
-    """A markdown report for `tasks`."""
+def run_benchmarks(tasks: list[str], seconds: float = 3.0, image_size: int = 128,
+                   tick: Callable[[str], None] = _no_tick) -> str:
+    """A markdown report for `tasks` (`tick`: progress, see `bench_task`)."""
     lines = [
         f"# mjdrive bench ({platform.processor() or platform.machine()}, {mujoco.__version__=}, one thread)",
         "",
@@ -120,7 +140,7 @@ def run_benchmarks(tasks: list[str], seconds: float = 3.0, image_size: int = 128
         "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for name in tasks:
-        r = bench_task(name, seconds, image_size)
+        r = bench_task(name, seconds, image_size, tick)
         control_dt = r["dt"] * r["n_sub"]
         raw_sim = r["raw_steps_per_s"] * r["dt"]
         env_sim = r["env_steps_per_s"] * control_dt
@@ -156,9 +176,10 @@ def _timed_rate(step: Callable[[], None], seconds: float, counter: Callable[[], 
             return calls / elapsed, (counter() - before) / elapsed
 
 
-def bench_roundabout(level: str, seconds: float = 3.0, image_size: int = 84) -> dict[str, float]:
+def bench_roundabout(level: str, seconds: float = 3.0, image_size: int = 84,
+                     tick: Callable[[str], None] = _no_tick) -> dict[str, float]:
     """Raw physics, env features (with the traffic update's share of the time) and env camera throughput
-    of one roundabout density, the ego braking at its yield line."""
+    of one roundabout density, the ego braking at its yield line (`tick` after each of `ROUNDABOUT_PARTS`)."""
     env = suite.load("roundabout", level, {"random": 0})
     env.reset()
     model, dt, n_sub = env.physics.model.ptr, env.physics.timestep(), env._n_sub_steps
@@ -177,25 +198,30 @@ def bench_roundabout(level: str, seconds: float = 3.0, image_size: int = 84) -> 
 
     env_2ms = suite.load("roundabout", level, {"random": 0, "physics_dt": COMPARE_DT})
     env_2ms.reset()
+    tick(f"roundabout/{level}: envs built")
     result = {"dt": dt, "n_sub": n_sub, "users": traffic.n, "decision": traffic.config.decision_period}
     # Interleaved short rounds, best of each: robust to other processes sharing the machine.
     raw, envs, envs_2ms = [], [], []
     for _ in range(ROUNDS):
         raw.append(_rate(lambda: mujoco.mj_step(model, data, n_sub), seconds / ROUNDS) * n_sub)
+        tick(f"roundabout/{level}: raw")
         envs.append(_timed_rate(step(env), seconds / ROUNDS, lambda: traffic.cpu_time))
+        tick(f"roundabout/{level}: env")
         envs_2ms.append(_rate(step(env_2ms), seconds / ROUNDS))
+        tick(f"roundabout/{level}: env at {COMPARE_DT * 1e3:g} ms")
     result["raw_steps_per_s"] = max(raw)
     result["env_steps_per_s"], result["traffic_share"] = max(envs)
     result["env_2ms_steps_per_s"] = max(envs_2ms)
     camera_env = suite.load("roundabout", level, {"random": 0, "observation": "camera", "image_size": image_size})
     camera_env.reset()
     result["camera_env_steps_per_s"] = _rate(step(camera_env), seconds)
+    tick(f"roundabout/{level}: camera env")
     for camera in camera_env.task.cameras.values():
         camera.close()
     return result
 
 
-def bench_highway_env(seconds: float = 3.0) -> dict[str, float] | None:
+def bench_highway_env(seconds: float = 3.0, tick: Callable[[str], None] = _no_tick) -> dict[str, float] | None:
     """highway-env's roundabout-v0 (kinematic cars, no rendering, IDLE action) if installed, else None, in
     interleaved rounds with an mjdrive roundabout holding as many cars (`HIGHWAY_CARS` and the ego; features,
     default physics step, the ego braking at its yield line)."""
@@ -214,6 +240,7 @@ def bench_highway_env(seconds: float = 3.0) -> dict[str, float] | None:
 
     ours = suite.load("roundabout", "d120", {"random": 0, "road_users": HIGHWAY_CARS})
     ours.reset()
+    tick("highway-env: envs built")
 
     def ours_go():
         if ours.step(HOLD_ACTION).last():
@@ -222,7 +249,9 @@ def bench_highway_env(seconds: float = 3.0) -> dict[str, float] | None:
     rates, ours_rates = [], []
     for _ in range(ROUNDS):
         rates.append(_rate(go, seconds / ROUNDS))
+        tick("highway-env roundabout-v0")
         ours_rates.append(_rate(ours_go, seconds / ROUNDS))
+        tick("mjdrive roundabout beside it")
     config = env.unwrapped.config
     result = {"steps_per_s": max(rates), "policy_dt": 1.0 / config["policy_frequency"],
               "sim_dt": 1.0 / config["simulation_frequency"], "vehicles": len(env.unwrapped.road.vehicles),
@@ -233,8 +262,9 @@ def bench_highway_env(seconds: float = 3.0) -> dict[str, float] | None:
 
 
 def run_roundabout_benchmarks(levels=ROUNDABOUT_LEVELS, seconds: float = 3.0, image_size: int = 84,
-                              highway: bool = True) -> str:
-    """A markdown report: every roundabout density, and highway-env's roundabout-v0 if installed."""
+                              highway: bool = True, tick: Callable[[str], None] = _no_tick) -> str:
+    """A markdown report: every roundabout density, and highway-env's roundabout-v0 if installed (`tick`:
+    progress, see `bench_roundabout`)."""
     lines = [
         f"# mjdrive bench, roundabout ({platform.processor() or platform.machine()}, {mujoco.__version__=}, "
         "one thread)",
@@ -246,7 +276,7 @@ def run_roundabout_benchmarks(levels=ROUNDABOUT_LEVELS, seconds: float = 3.0, im
         "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for level in levels:
-        r = bench_roundabout(level, seconds, image_size)
+        r = bench_roundabout(level, seconds, image_size, tick)
         control_dt = r["dt"] * r["n_sub"]
         raw_sim = r["raw_steps_per_s"] * r["dt"]
         env_sim = r["env_steps_per_s"] * control_dt
@@ -258,7 +288,7 @@ def run_roundabout_benchmarks(levels=ROUNDABOUT_LEVELS, seconds: float = 3.0, im
             f"| {1e3 * r['traffic_share'] / r['env_steps_per_s']:.2f} | {r['camera_env_steps_per_s']:,.0f} "
             f"| {r['camera_env_steps_per_s'] * control_dt:.1f} |"
         )
-    hw = bench_highway_env(seconds) if highway else None
+    hw = bench_highway_env(seconds, tick) if highway else None
     if hw is not None:
         ours_sim = hw["ours_steps_per_s"] * hw["ours_control_dt"]
         hw_sim = hw["steps_per_s"] * hw["policy_dt"]

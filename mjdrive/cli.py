@@ -136,14 +136,14 @@ def cmd_list(args) -> int:
 
 
 def cmd_run(args) -> int:
-    from tqdm import tqdm
-
     from mjdrive.envs import make_env
     from mjdrive.policies import make_policy
+    from mjdrive.progress import Progress, note
     from mjdrive.video import EpisodeVideo
 
     domain, task = _split_task(args.task)
     task_kwargs = _parse_kwargs(args.task_kwarg)
+    note(f"mjdrive run: building {args.task} ...")
     env = make_env(domain, task, **task_kwargs)
     policy = make_policy(args.policy, env, args.seed)
     out = Path(args.out)
@@ -160,7 +160,8 @@ def cmd_run(args) -> int:
         video = EpisodeVideo(env, out / f"episode_{episode:03d}.mp4") if args.video else None
         total_reward, steps = 0.0, 0
         start = time.perf_counter()
-        with tqdm(desc=f"episode {episode} (seed {seed})", unit="step", leave=False, mininterval=1.0) as bar:
+        with Progress(desc=f"episode {episode + 1}/{args.episodes} (seed {seed})", unit="step",
+                      total=env.unwrapped.max_episode_steps, leave=False) as bar:
             while True:
                 if video:
                     video.add_frame()
@@ -188,9 +189,11 @@ def cmd_run(args) -> int:
 
 
 def cmd_replay(args) -> int:
+    from mjdrive.progress import note
     from mjdrive.record.replay import replay
 
-    result = replay(args.file, video=args.video)
+    note(f"mjdrive replay: reading {args.file} and rebuilding its env ...")
+    result = replay(args.file, video=args.video, progress=True)
     print(result.report())
     return 0 if result.match else 1
 
@@ -208,13 +211,21 @@ def cmd_logs(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    from mjdrive.bench import run_benchmarks, run_roundabout_benchmarks
+    from mjdrive.bench import bench_parts, run_benchmarks, run_roundabout_benchmarks
+    from mjdrive.progress import Progress
 
     parts = []
-    if args.tasks:
-        parts.append(run_benchmarks(args.tasks, seconds=args.seconds, image_size=args.image_size))
-    if args.roundabout:
-        parts.append(run_roundabout_benchmarks(args.roundabout, seconds=args.seconds, highway=args.highway))
+    with Progress(total=bench_parts(args.tasks, args.roundabout, args.highway), desc="bench",
+                  unit="part") as bar:
+        def tick(label: str) -> None:
+            bar.set_postfix_str(label, refresh=False)
+            bar.update()
+
+        if args.tasks:
+            parts.append(run_benchmarks(args.tasks, seconds=args.seconds, image_size=args.image_size, tick=tick))
+        if args.roundabout:
+            parts.append(run_roundabout_benchmarks(args.roundabout, seconds=args.seconds, highway=args.highway,
+                                                   tick=tick))
     report = "\n\n".join(parts)
     print(report)
     if args.out:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import dm_env
@@ -59,6 +60,13 @@ class DrivingGymEnv(gym.Env):
         self.render_mode = render_mode
         self.render_camera, self.render_size = render_camera, render_size
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.dm_env.control_timestep())}
+
+    @property
+    def max_episode_steps(self) -> int:
+        """Control steps until the time limit truncates an episode (a task may end it sooner)."""
+        config_class, defaults = suite.task_config(self.domain, self.task_name)
+        time_limit = config_class.from_dict(self.task_kwargs, defaults).time_limit  # [s]
+        return math.ceil(round(time_limit / self.dm_env.control_timestep(), 6))
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)

@@ -64,10 +64,12 @@ def _physics_state(data) -> dict[str, np.ndarray]:
             "mocap_quat": data.mocap_quat.ravel().copy()}
 
 
-def replay(path: str | Path, video: str | Path | None = None) -> ReplayResult:
-    """Rebuild the env of `path`, replay its actions and compare. Raises EpisodeFileError when the file
-    cannot be replayed (not an episode, no seed or RNG state, kwargs that were not JSON)."""
+def replay(path: str | Path, video: str | Path | None = None, progress: bool = False) -> ReplayResult:
+    """Rebuild the env of `path`, replay its actions and compare (`progress`: a bar over the steps on
+    stderr). Raises EpisodeFileError when the file cannot be replayed (not an episode, no seed or RNG state,
+    kwargs that were not JSON)."""
     from mjdrive.envs.gym_env import DrivingGymEnv
+    from mjdrive.progress import Progress
 
     episode = read_episode(path, topics={"/action", "/physics", "/reward"})
     meta = episode.metadata
@@ -123,7 +125,8 @@ def replay(path: str | Path, video: str | Path | None = None) -> ReplayResult:
                 result.mismatch_step, result.mismatch_fields = k, bad
 
         compare(0, None)
-        for k in range(steps):
+        label = f"replay{' + video' if writer else ''}"
+        for k in Progress(range(steps), desc=label, unit="step", disable=not progress):
             if writer:
                 writer.add_frame()
             timestep = env.dm_env.step(actions[k])

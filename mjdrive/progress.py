@@ -1,0 +1,86 @@
+"""Progress of long commands: a tqdm bar with a total and an ETA on a terminal, plain lines elsewhere.
+
+On a terminal the bar redraws itself in place; when stderr is a file or a pipe (a log, CI), every update
+that is due writes one whole line instead of carriage returns. A heartbeat thread redraws the bar (or writes
+a line) when nothing has updated it for a while, so a command never goes silent during one long step.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from typing import IO, Any
+
+from tqdm import tqdm
+
+HEARTBEAT = 0.5  # [s] how often the heartbeat thread looks at the bar
+TERMINAL_REFRESH = 1.0  # [s] longest pause between redraws on a terminal
+PLAIN_INTERVAL = 1.5  # [s] shortest pause between two plain lines (and the longest silence)
+PLAIN_FORMAT = "{desc}: {n_fmt}/{total_fmt} ({percentage:.0f}%) [{elapsed}<{remaining}, {rate_fmt}{postfix}]"
+PLAIN_FORMAT_NO_TOTAL = "{desc}: {n_fmt} [{elapsed}, {rate_fmt}{postfix}]"
+
+
+def is_terminal(stream: IO[str]) -> bool:
+    try:
+        return stream.isatty()
+    except (AttributeError, ValueError):
+        return False
+
+
+class Progress(tqdm):
+    """A tqdm bar on stderr that writes plain lines when stderr is not a terminal (`plain=None`: decide
+    from the stream) and redraws at least every `TERMINAL_REFRESH` s (terminal) or `PLAIN_INTERVAL` s (lines).
+    Use as tqdm: `with Progress(total=n, desc="...", unit="step") as bar: ... bar.update()`."""
+
+    def __init__(self, iterable: Any = None, *, plain: bool | None = None, file: IO[str] | None = None, **kwargs):
+        file = sys.stderr if file is None else file
+        self.plain = not is_terminal(file) if plain is None else plain
+        if self.plain:
+            total = kwargs.get("total", len(iterable) if hasattr(iterable, "__len__") else None)
+            kwargs.setdefault("bar_format", PLAIN_FORMAT if total else PLAIN_FORMAT_NO_TOTAL)
+            kwargs.setdefault("mininterval", PLAIN_INTERVAL)
+            kwargs["leave"] = False  # close() writes the last line itself, once
+        else:
+            kwargs.setdefault("dynamic_ncols", True)
+        kwargs.setdefault("miniters", 1)
+        self._stop = threading.Event()
+        super().__init__(iterable, file=file, **kwargs)
+        self._heartbeat = None
+        if not self.disable:
+            self._heartbeat = threading.Thread(target=self._beat, daemon=True, name="progress-heartbeat")
+            self._heartbeat.start()
+
+    def _beat(self) -> None:
+        interval = PLAIN_INTERVAL if self.plain else TERMINAL_REFRESH
+        while not self._stop.wait(HEARTBEAT):
+            if time.time() - self.last_print_t >= interval:
+                self.refresh()
+
+    def refresh(self, nolock: bool = False, lock_args: Any = None) -> None:
+        super().refresh(nolock=nolock, lock_args=lock_args)
+        self.last_print_t, self.last_print_n = time.time(), self.n
+
+    def display(self, msg: str | None = None, pos: int | None = None) -> None:
+        if not self.plain:
+            super().display(msg, pos)
+            return
+        if msg == "":  # tqdm clearing a bar that does not stay: nothing to clear in a log
+            return
+        self.fp.write((msg if msg is not None else self.__str__()) + "\n")
+        self.fp.flush()
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._heartbeat is not None and self._heartbeat is not threading.current_thread():
+            self._heartbeat.join()
+        if self.plain and not self.disable and self.n != self.last_print_n:
+            self.refresh()  # the final count, once
+        super().close()
+
+
+def note(message: str, file: IO[str] | None = None) -> None:
+    """One status line on stderr (what a command is about to do), flushed at once."""
+    stream = sys.stderr if file is None else file
+    stream.write(message + "\n")
+    stream.flush()
