@@ -1,6 +1,7 @@
 """Study 002 roads: composable pieces with ports, the concatenated map of Fig. 8, the route, the tactical
 trajectory, conflict zones and rendering."""
 
+import json
 import math
 
 import mujoco
@@ -174,6 +175,22 @@ def test_tactical_trajectory_intervals_are_ordered_disjoint_and_inside_the_route
                                                          at["overtaking_road/taper_out_1"]))
     assert tt.interval("crossroad")[0] < at["crossroad/approach->straight_0"] < tt.interval("crossroad")[1]
     assert tt.interval("merge")[0] < at["merge_road/taper"] < tt.interval("merge")[1]
+
+
+def test_waypoints_carry_lane_data_and_scenario_and_the_route_serialises():
+    wp = URBAN.waypoints(spacing=2.0)
+    rm = URBAN.road_map
+    assert wp.s[0] == 0.0 and wp.s[-1] > URBAN.length - 2.0 and np.allclose(np.diff(wp.s), 2.0)
+    for k in range(0, len(wp.s), 7):
+        lane = rm.lanes[wp.lane[k]]
+        np.testing.assert_allclose(lane.position(wp.lane_s[k]), wp.xy[k], atol=1e-3)
+        assert wp.speed_limit[k] == lane.speed_limit and wp.lane_width[k] == lane.width
+        assert wp.scenario[k] == URBAN.tactical.scenario_at(wp.s[k])
+    assert set(wp.scenario) == {roads.FOLLOW, "roundabout", "lane_change", "crossroad", "merge"}
+    assert {rm.lanes[i].speed_limit for i in wp.lane} == {30 / 3.6, 50 / 3.6}
+    data = json.loads(json.dumps(URBAN.to_dict()))
+    assert data["route"][0] == "roundabout/arm2_in_0" and len(data["tactical"]) == 4
+    assert any(z["other_lane"] == "merge_road/main_0_3" and z["ego_yields"] for z in data["conflicts"])
 
 
 def test_tactical_trajectory_rejects_overlaps_and_unknown_scenarios():

@@ -13,6 +13,7 @@ from mjdrive.roads.ports import ComposedMap, Piece, Port, ScenarioSpan, compose
 from mjdrive.roads.roadmap import Crosswalk, LaneQuery, RoadMap
 from mjdrive.roads.urban import (
     FOLLOW,
+    RouteWaypoints,
     TacticalTrajectory,
     UrbanRoute,
     concatenated,
@@ -30,7 +31,7 @@ __all__ = [
     "s_curve", "spawn_points", "straight", "town", "two_lane_road", "wrap_angle",
     # study 002: composable pieces, routes, tactical trajectory, conflict zones
     "FOLLOW", "ComposedMap", "ConflictZones", "CrossroadParams", "MergeParams", "OvertakingRoadParams", "Piece",
-    "Port", "RoundaboutParams", "RouteConflicts", "ScenarioSpan", "TacticalTrajectory", "UrbanRoute", "compose",
-    "concatenated", "conflict_zones", "crossroad", "merge_road", "overtaking_road", "plan_route",
-    "roundabout_piece", "route_through", "tactical_trajectory", "urban_route",
+    "Port", "RoundaboutParams", "RouteConflicts", "RouteWaypoints", "ScenarioSpan", "TacticalTrajectory",
+    "UrbanRoute", "compose", "concatenated", "conflict_zones", "crossroad", "merge_road", "overtaking_road",
+    "plan_route", "roundabout_piece", "route_through", "tactical_trajectory", "urban_route",
 ]

@@ -55,6 +55,20 @@ class TacticalTrajectory:
 
 
 @dataclass(frozen=True)
+class RouteWaypoints:
+    """The lane waypoint planner's output (§4.1): points along the route with the map data at each."""
+
+    s: np.ndarray  # (M,) [m] route arc length
+    xy: np.ndarray  # (M, 2) [m]
+    heading: np.ndarray  # (M,) [rad]
+    lane: np.ndarray  # (M,) lane id
+    lane_s: np.ndarray  # (M,) [m] arc length along that lane
+    lane_width: np.ndarray  # (M,) [m]
+    speed_limit: np.ndarray  # (M,) [m/s]
+    scenario: tuple[str, ...]  # (M,) the tactical trajectory's scenario there
+
+
+@dataclass(frozen=True)
 class UrbanRoute:
     """A composed map with the ego's route and everything the tasks, agents and logs read."""
 
@@ -78,6 +92,31 @@ class UrbanRoute:
     def route_lane(self) -> Lane:
         """The route polyline as a Lane (its lane frame is the route's path frame)."""
         return Lane(self.polyline, name="route")
+
+    def waypoints(self, spacing: float = 2.0) -> RouteWaypoints:
+        """Waypoints every `spacing` [m] from the route's start, with lane, width, speed limit, scenario."""
+        check("spacing", spacing, isinstance(spacing, int | float) and spacing > 0, "a number > 0")
+        rm, path = self.road_map, self.route_lane()
+        s = np.arange(0.0, path.length + 1e-9, spacing)
+        offsets = route_offsets(rm, self.route)
+        k = np.clip(np.searchsorted(offsets, s, side="right") - 1, 0, len(self.route) - 1)
+        lane = np.asarray(self.route)[k]
+        lanes = [rm.lanes[i] for i in lane]
+        return RouteWaypoints(s, path.position(s), path.heading(s), lane,
+                              np.minimum(s - offsets[k], [ln.length for ln in lanes]),
+                              np.array([ln.width for ln in lanes]), np.array([ln.speed_limit for ln in lanes]),
+                              tuple(self.tactical.scenario_at(float(x)) for x in s))
+
+    def to_dict(self) -> dict:
+        """Plain data for logs: route lane names, length [m], the tactical trajectory and the conflict zones
+        on the route (arc lengths [m] along it)."""
+        rm, rc = self.road_map, self.route_conflicts
+        zones = [{"s_in": float(rc.s_in[k]), "s_out": float(rc.s_out[k]), "s_point": float(rc.s_point[k]),
+                  "lane": rm.lanes[rc.route_lane[k]].name, "other_lane": rm.lanes[rc.other_lane[k]].name,
+                  "ego_yields": bool(rc.ego_yields[k]), "kind": ("crossing", "merge")[int(rc.kind[k])]}
+                 for k in range(len(rc))]
+        return {"route": [rm.lanes[i].name for i in self.route], "length": self.length,
+                "tactical": [[name, s0, s1] for name, s0, s1 in self.tactical.intervals], "conflicts": zones}
 
 
 def route_offsets(road_map: RoadMap, route: Sequence[int]) -> np.ndarray:
