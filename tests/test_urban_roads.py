@@ -118,6 +118,10 @@ def test_two_lane_road_lanes_are_neighbours_with_a_broken_line_and_a_solid_centr
     entry, exit_ = rm.lane_id("in_1"), rm.lane_id("out_1")
     assert sorted(_names(rm, rm.successors[entry])) == ["taper_in_0", "taper_in_1"]
     assert sorted(_names(rm, rm.predecessors(exit_))) == ["taper_out_0", "taper_out_1"]
+    # with three lanes closing into one, the leftmost yields to both others: no tie
+    rm3 = roads.overtaking_road(lanes=3).road_map
+    cz = roads.conflict_zones(rm3)
+    assert sorted(_names(rm3, cz.yielding_lane)) == ["taper_out_0", "taper_out_0", "taper_out_1"]
 
 
 def test_crossroad_minor_approach_has_left_straight_and_right_successors():
@@ -289,6 +293,8 @@ VARIATIONS = [
     {"roundabout": {"exit_arm": 3}},
     {"order": ("roundabout", "crossroad", "road", "merge")},
     {"order": ("road", "merge")},
+    {"road": {"exit_lanes": 2, "opposite_lanes": 2}, "junction": {"minor_lanes": 2, "turn": "left"},
+     "order": ("road", "crossroad")},
 ]
 
 

@@ -124,7 +124,8 @@ def overtaking_road(params: OvertakingRoadParams | None = None, **kwargs) -> Pie
                for k in range(n - m_in)]
     closing = [_add(rm, s_curve((x[3], a - (k + 0.5) * w), 0.0, p.taper_length,
                                 (y_out - 0.5 * w) - (a - (k + 0.5) * w)).sample(), f"taper_out_{k}", w,
-                    edge if k == 0 else Marking.NONE, Marking.NONE, p.speed_limit, PRIORITY_MAJOR - YIELD_STEP)
+                    edge if k == 0 else Marking.NONE, Marking.NONE, p.speed_limit,
+                    PRIORITY_MAJOR - YIELD_STEP * (n - m_out - k))  # the leftmost yields to all
                for k in range(n - m_out)]
     taper_in, taper_out = opening + taper_in, closing + taper_out  # ordered by k
     for j, i in enumerate(inn):
