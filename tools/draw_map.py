@@ -44,6 +44,8 @@ def draw(urban: UrbanRoute, ax) -> None:
         ax.plot(seg[:, 0], seg[:, 1], color=SCENARIO_COLOURS[name], lw=2.5, alpha=0.6, zorder=3, label=name)
         ends = route.position(np.array([s0, s1]))
         ax.plot(ends[:, 0], ends[:, 1], "o", color="red", ms=3, zorder=4)
+        ax.annotate(name, ends[0], xytext=(0, -14), textcoords="offset points", fontsize=7, ha="center",
+                    color="darkred")
     rc = urban.route_conflicts
     for k in range(len(rc)):
         seg = route.position(np.linspace(rc.s_in[k], rc.s_out[k], 10))
