@@ -25,13 +25,13 @@ $(STAMP)/python: pyproject.toml $(STAMP)/system
 install: $(STAMP)/python
 
 run: install
-	$(PYTHON) -m mjdrive.cli run --task waypoints/four_routes --episodes 2 --out runs/demo
+	$(PYTHON) -m mjdrive.cli run --task waypoints/four_routes --episodes 2 --out runs/demo --overwrite
 
 test: install
 	$(PYTHON) -m pytest -q
 
 bench: install
-	$(PYTHON) -m mjdrive.cli bench --out results/bench.md
+	$(PYTHON) -m mjdrive.cli bench --out runs/bench.md
 
 lint:
 	ruff check .

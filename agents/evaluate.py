@@ -208,11 +208,14 @@ def eval_command(args) -> int:
     """`mjdrive eval` (argument parsing lives in mjdrive/cli.py): prints markdown, writes OUT.md/OUT.json."""
     import json
 
+    from mjdrive.cli import fresh_folder
+
     task_kwargs = parse_task_kwargs(args.task_kwarg)
     record_dir = None
-    if args.record:
-        name = Path(args.out).name if args.out else Path(args.checkpoint).stem
-        record_dir = args.record_dir or str(Path("runs") / "eval" / name)  # logs stay out of results/
+    if args.record:  # beside OUT.md/OUT.json as OUT/, else runs/eval/CHECKPOINT/; one evaluation per folder
+        default = Path(args.out).with_suffix("") if args.out else Path("runs") / "eval" / Path(args.checkpoint).stem
+        record_dir = str(fresh_folder(args.record_dir or default, getattr(args, "overwrite", False),
+                                      ("*.mcap", "*.mcap.part"), "--record-dir" if args.record_dir else "logs folder"))
     result = evaluate(args.checkpoint, episodes=args.episodes, task=args.task, seed=args.seed,
                       task_kwargs=task_kwargs, deterministic=not args.stochastic, record_dir=record_dir,
                       progress="eval")

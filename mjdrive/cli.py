@@ -106,6 +106,32 @@ def _parse_kwargs(pairs: list[str]) -> dict:
     return out
 
 
+RUN_FILES = ("*.mcap", "*.mcap.part", "episode_*.mp4", "summary.json")  # what `mjdrive run` writes
+
+
+def fresh_folder(path: str | Path, overwrite: bool, patterns: tuple[str, ...] = RUN_FILES,
+                 option: str = "--out") -> Path:
+    """A folder for one run's outputs: made if missing; an existing non-empty one is refused (so two runs
+    never mix), or with `overwrite` emptied of the files a run writes (`patterns`); anything else in it
+    is left alone and refused, never deleted."""
+    folder = Path(path)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"{option} {folder} is a file, not a folder")
+    if folder.is_dir() and any(folder.iterdir()):
+        if not overwrite:
+            raise ValueError(f"{option} {folder} is not empty (a folder holds one run): choose a new folder, "
+                             "or pass --overwrite to replace its run")
+        for pattern in patterns:
+            for file in folder.glob(pattern):
+                file.unlink()
+        others = sorted(p.name for p in folder.iterdir())
+        if others:
+            raise ValueError(f"{option} {folder} holds files that are not a run's ({', '.join(others[:3])}"
+                             f"{', ...' if len(others) > 3 else ''}); --overwrite only replaces a run's files")
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
 def cmd_list(args) -> int:
     from mjdrive import suite
     from mjdrive.envs import GYM_IDS
@@ -144,10 +170,9 @@ def cmd_run(args) -> int:
     domain, task = _split_task(args.task)
     task_kwargs = _parse_kwargs(args.task_kwarg)
     note(f"mjdrive run: building {args.task} ...")
-    env = make_env(domain, task, **task_kwargs)
+    env = make_env(domain, task, **task_kwargs)  # bad keywords are reported before the folder is looked at
+    out = fresh_folder(args.out, args.overwrite)
     policy = make_policy(args.policy, env, args.seed)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     if args.record:  # one MCAP file per episode in OUT (see mjdrive/record/recorder.py)
         from mjdrive.record import RecordEpisodes, RecordOptions
 
@@ -269,7 +294,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--policy", default="pure_pursuit", choices=POLICIES, help="the driver")
     run.add_argument("--episodes", type=int_at_least(1), default=1, help="episodes to drive")
     run.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=0, help="seed of the first episode")
-    run.add_argument("--out", default="runs/demo", help="output folder")
+    run.add_argument("--out", default="runs/demo", help="output folder (one run: it must be new or empty)")
+    run.add_argument("--overwrite", action="store_true",
+                     help="replace the run already in OUT (its logs, videos and summary; nothing else)")
     run.add_argument("--video", action=argparse.BooleanOptionalAction, default=True,
                      help="write an mp4 per episode (front camera | top view)")
     run.add_argument("--record", action=argparse.BooleanOptionalAction, default=True,
@@ -335,7 +362,10 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--record", action=argparse.BooleanOptionalAction, default=True,
                           help="write one MCAP log per episode (default on)")
     evaluate.add_argument("--record-dir", default=None,
-                          help="where the logs go (default: runs/eval/NAME/, NAME from --out or the checkpoint)")
+                          help="where the logs go (default: OUT/ beside OUT.md, or runs/eval/CHECKPOINT/ without "
+                               "--out); it must be new or empty")
+    evaluate.add_argument("--overwrite", action="store_true",
+                          help="replace the logs of an earlier evaluation in the logs folder")
     evaluate.set_defaults(func=cmd_eval)
 
     ensemble = sub.add_parser("ensemble", help="combine trained policies into one that `eval` reads like a policy.pt")

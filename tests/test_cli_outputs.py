@@ -57,3 +57,34 @@ def test_run_shows_steps_out_of_the_episode_length_without_carriage_returns(run_
     assert "\r" not in result.stderr
     assert "episode 1/2 (seed 0): " in result.stderr
     assert "/30 (" in result.stderr, result.stderr  # 3 s at 10 Hz: the bar's total is the episode length
+
+
+def test_run_refuses_a_folder_that_holds_a_run_and_overwrite_replaces_it(run_folder):
+    out, _ = run_folder
+    again = mjdrive("run", "--task", "waypoints/straight", "--episodes", "1", "--no-video", "--no-record",
+                    "--task-kwarg", "time_limit=1", "--out", str(out))
+    assert again.returncode == 2
+    assert "is not empty" in again.stderr and "--overwrite" in again.stderr
+    assert len(list(out.glob("*.mcap"))) == 2  # untouched
+    (out / "notes.txt").write_text("mine")
+    refused = mjdrive("run", "--task", "waypoints/straight", "--episodes", "1", "--no-video",
+                      "--task-kwarg", "time_limit=1", "--out", str(out), "--overwrite")
+    assert refused.returncode == 2 and "notes.txt" in refused.stderr
+    assert (out / "notes.txt").read_text() == "mine"  # a user's file is never deleted
+    (out / "notes.txt").unlink()
+    replaced = mjdrive("run", "--task", "waypoints/straight", "--episodes", "1", "--no-video", "--seed", "7",
+                       "--task-kwarg", "time_limit=1", "--out", str(out), "--overwrite")
+    assert replaced.returncode == 0, replaced.stderr
+    assert [p.name for p in out.glob("*.mcap")] == ["waypoints-straight_7_00000.mcap"]
+
+
+def test_eval_writes_its_logs_beside_out_not_under_the_current_folder(tmp_path):
+    work = tmp_path / "cwd"
+    work.mkdir()
+    out = tmp_path / "elsewhere" / "x"
+    result = mjdrive("eval", "--checkpoint", str(ROOT / "results/checkpoints/ppo_features_straight.pt"),
+                     "--episodes", "1", "--task-kwarg", "time_limit=1", "--out", str(out), cwd=work)
+    assert result.returncode == 0, result.stderr
+    assert out.with_suffix(".md").is_file() and out.with_suffix(".json").is_file()
+    assert len(list(out.glob("*.mcap"))) == 1
+    assert not (work / "runs").exists()
