@@ -77,7 +77,7 @@ def _bad_files(tmp_path: Path, marker: Path) -> dict[str, tuple[Path, str]]:
         "evil_torch": (evil["torch"], "is refused: it would call or build the Python object exec;"),
         "evil_pickle2": (evil["pickle2"], "is refused: it would call or build the Python object exec;"),
         "evil_pickle4": (evil["pickle4"], "is refused: it is a pickle the safe unpickler cannot read"),
-        "text": (text, "is corrupt or not a torch file"),
+        "text": (text, "is not a torch file (it starts with b'thes', neither a zip archive nor a pickle)"),
         "empty": (empty, "is empty (0 bytes)"),
         "truncated": (truncated, "is corrupt or not a torch file (RuntimeError: PytorchStreamReader failed"),
         "missing": (tmp_path / "missing.pt", "does not exist"),
