@@ -53,6 +53,8 @@ class BatchedEnv:
     `device=None` returns numpy arrays; a torch device ("cpu") returns torch tensors instead (obs, reward,
     terminated, truncated; info stays numpy). Seeds: copy i is reset with `seed + i`; later episodes follow
     each copy's own random stream, so a run is reproducible from its seed.
+    `first_copy`: the index of copy 0 in a larger vector env split over workers (`mjdrive.envs.vector`); it
+    names the copies' log folders (env_{first_copy + i}), so a split env writes the same files as a whole one.
     """
 
     def __init__(
@@ -66,6 +68,7 @@ class BatchedEnv:
         device: str | None = None,
         environment_kwargs: dict[str, Any] | None = None,
         record_dir: str | Path | None = None,
+        first_copy: int = 0,
         **task_kwargs,
     ):
         if num_envs < 1:
@@ -116,7 +119,7 @@ class BatchedEnv:
         # One MCAP file per episode per copy, copy i into record_dir/env_{i:02d}/ (streams never mix).
         self.recorders: list[EpisodeRecorder] | None = None
         if record_dir is not None:
-            self.recorders = [EpisodeRecorder(Path(record_dir) / f"env_{i:02d}",
+            self.recorders = [EpisodeRecorder(Path(record_dir) / f"env_{first_copy + i:02d}",
                                               EnvSpec(domain, name, self.task_kwargs, environment_kwargs))
                               for i, name in enumerate(self.task_names)]
         self._obs: list[dict[str, np.ndarray]] = []
@@ -171,9 +174,9 @@ class BatchedEnv:
         return (self._out_obs(self._stack(self._obs)), self._out(rewards), self._out(terminated),
                 self._out(truncated), info)
 
-    def observations(self) -> dict:
-        """The current observation of every copy (after the last reset or step)."""
-        return self._out_obs(self._stack(self._obs))
+    def observations(self) -> dict | None:
+        """The current observation of every copy (after the last reset or step); None before the first reset."""
+        return self._out_obs(self._stack(self._obs)) if self._obs else None
 
     def close(self) -> None:
         for recorder in self.recorders or ():
