@@ -156,6 +156,37 @@ def test_merge_acceleration_lane_leads_onto_the_main_road():
     assert piece.via == (taper,)
 
 
+@pytest.mark.parametrize("degrees", [20, 30, 45, 60, 90])
+def test_merge_approach_stays_clear_of_the_main_road(degrees):
+    angle = math.radians(degrees)
+    least = next(r / 10 for r in range(80, 2000) if _valid(roads.MergeParams, merge_angle=angle, slip_radius=r / 10))
+    for lanes in (1, 2):
+        piece = roads.merge_road(merge_angle=angle, slip_radius=least, main_lanes=lanes)
+        rm = piece.road_map
+        main = roads.RoadMap("main")
+        for lane in rm.lanes:
+            if lane.name.split("_")[0] in ("main", "opp") and lane.name != "main_to_approach":
+                main.add_lane(lane)
+        approach = [rm.lanes[rm.lane_id(n)] for n in ("approach_in_0", "approach_out_0")]
+        edges = np.vstack([e for lane in approach for e in (lane.left_edge(), lane.right_edge())])
+        assert not main.on_road(edges).any()
+        turns = [lane for lane in rm.lanes if lane.name == "main_to_approach"]
+        if turns:  # where the right turn into the approach exists, it is drivable
+            assert np.abs(turns[0].vertex_curvature).max() <= 1 / 6.0 + 1e-6
+            assert rm.predecessors(rm.lane_id("approach_out_0")) == [rm.lane_id("main_to_approach")]
+    if degrees >= 45:  # a wide bend and a long main road leave room for the turn into the approach
+        turn = roads.merge_road(merge_angle=angle, slip_radius=40.0, main_before=300.0).road_map.lanes[-1]
+        assert turn.name == "main_to_approach" and np.abs(turn.vertex_curvature).max() <= 1 / 6.0 + 1e-6
+
+
+def _valid(cls, **kwargs):
+    try:
+        cls(**kwargs)
+    except ValueError:
+        return False
+    return True
+
+
 # --- tactical trajectory -------------------------------------------------------------------------------------
 
 
@@ -287,7 +318,7 @@ VARIATIONS = [
     {"junction": {"crossing_angle": math.radians(120), "approach_length": 80.0}},
     {"road": {"lanes": 3, "length": 300.0}},
     {"road": {"length": 150.0, "taper_length": 20.0}},
-    {"merge": {"main_lanes": 2, "merge_angle": math.radians(30), "accel_length": 100.0}},
+    {"merge": {"main_lanes": 2, "merge_angle": math.radians(30), "slip_radius": 30.0, "accel_length": 100.0}},
     {"merge": {"merge_angle": math.radians(90), "slip_radius": 12.0}},
     {"roundabout": {"exit_arm": 1, "arms": 3, "entry_arm": 0, "radius": 20.0}},
     {"roundabout": {"exit_arm": 3}},
@@ -328,7 +359,7 @@ BAD = [
     (roads.crossroad, {"main_lanes": 2.0}, "main_lanes"),
     (roads.crossroad, {"approach_length": 5.0}, "approach_length"),
     (roads.merge_road, {"merge_angle": 2.0}, "merge_angle"),
-    (roads.merge_road, {"main_before": 10.0, "slip_radius": 60.0}, "main_before"),
+    (roads.merge_road, {"merge_angle": math.radians(30), "slip_radius": 20.0}, "slip_radius"),
     (roads.merge_road, {"main_lanes": True}, "main_lanes"),
     (roads.roundabout_piece, {"exit_arm": 2}, "exit_arm"),
     (roads.roundabout_piece, {"entry_arm": 4}, "entry_arm"),

@@ -15,6 +15,7 @@ LANE_WIDTH_RANGE = (2.5, 5.0)  # [m]
 SPEED_LIMIT_RANGE = (1.0, 40.0)  # [m/s]
 MAX_LANES = 4  # lanes per direction
 TURNS = ("left", "straight", "right")
+APPROACH_CLEARANCE = 0.5  # [m] between the merge approach's left edge and the main road's right edge
 
 
 def check(name: str, value: Any, ok: bool, allowed: str) -> None:
@@ -76,6 +77,11 @@ class RoundaboutParams(_FromDict):
         check_number("crosswalk_offset", self.crosswalk_offset, 0.0, self.arm_length - 3.0)
         check_int("entry_arm", self.entry_arm, 0, self.arms - 1)
         check_int("exit_arm", self.exit_arm, 0, self.arms - 1)
+        # `roads.roundabout`: entries meet the outer ring lane at angle delta, which must clear the arm's lane
+        delta = min(0.35, 0.3 * 2 * math.pi / self.arms)
+        least = (self.lane_width / 2 + 0.5) / math.sin(delta) - (self.lanes - 1) * self.lane_width / 2
+        check_number("radius", self.radius, math.ceil(max(least, 3.0 + self.lanes * self.lane_width / 2) * 10) / 10,
+                     100.0)
 
 
 @dataclass(frozen=True)
@@ -142,7 +148,7 @@ class MergeParams(_FromDict):
     """A two-way approach road (one lane each way) meets a main road from its right at `merge_angle`:
     the ego's lane bends right through an arc of `slip_radius` into an acceleration lane of
     `accel_length` beside the main road, which tapers into the main road's rightmost lane. Main-road
-    traffic may turn right into the approach's other lane."""
+    traffic may turn right into the approach's other lane where that turn fits (steep merge angles)."""
 
     approach_length: float = 40.0  # [m]
     merge_angle: float = math.radians(60)  # [rad] between the approach and the main road
@@ -162,7 +168,11 @@ class MergeParams(_FromDict):
         check_number("main_speed_limit", self.main_speed_limit, *SPEED_LIMIT_RANGE)
         check_number("approach_length", self.approach_length, 25.0, 1000.0)
         check_number("merge_angle", self.merge_angle, math.radians(20), math.radians(90))
-        check_number("slip_radius", self.slip_radius, 8.0, 200.0)
+        # The bend lifts the approach's end by slip_radius * (1 - cos(merge_angle)); its other lane, one lane
+        # width to the left, must stay clear of the main road.
+        lift = 1.0 - math.cos(self.merge_angle)
+        least = (self.lane_width * math.cos(self.merge_angle) + APPROACH_CLEARANCE) / lift
+        check_number("slip_radius", self.slip_radius, max(8.0, math.ceil(least * 10) / 10), 200.0)
         check_number("main_before", self.main_before, 10.0, 1000.0)
         check_number("accel_length", self.accel_length, 10.0, 1000.0)
         check_number("taper_length", self.taper_length, 4.0 * self.lane_width, 500.0)

@@ -13,7 +13,8 @@ Lane names (k counts from the centre line outward):
       junction) and "{arm}_out_k"; connectors "{from}->{to}_k"; ports "in" and one per exit arm.
   merge_road: approach "approach_in_0" / "approach_out_0", "slip" (the bend), "accel" (acceleration lane),
       "taper" (joins the main road); main road "main_k_p" in sections p = 0..4 (4 after the taper),
-      opposite "opp_k_p"; "main_to_approach" (main road to the approach); ports "in", "main_in", "out".
+      opposite "opp_k_p"; "main_to_approach" (a right turn from the main road into the approach, where an
+      arc of MIN_TURN_RADIUS fits); ports "in", "main_in", "out".
 """
 
 from __future__ import annotations
@@ -34,6 +35,8 @@ PRIORITY_MAJOR = 2  # main road, circulating lanes
 PRIORITY_MINOR = 0  # minor road, roundabout entries, merging lanes
 YIELD_STEP = 1  # a left turn or an ending lane ranks this much below its road
 SCENARIO_LEAD = 20.0  # [m] a scenario starts this far before its give-way line / bend
+MIN_TURN_RADIUS = 6.0  # [m] the merge's right turn from the main road into the approach exists from this radius
+MIN_SECTION = 5.0  # [m] shortest main-road section before that turn
 
 
 def _set_priority(rm: RoadMap, ids, priority: int) -> None:
@@ -242,8 +245,10 @@ def merge_road(params: MergeParams | None = None, **kwargs) -> Piece:
     b = slip_start + w * main_turn  # start of the approach's outbound lane
     reach = (y_right - b[1]) / math.sin(theta)  # [m] from b back along the approach to the rightmost lane
     x_a = b[0] + reach * math.cos(theta) - reach  # [m] where main traffic turns into the approach
-    check("main_before", p.main_before, reach > 1.0 and x_a > 5.0,
-          f"a value that leaves room for the turn into the approach (here > {p.main_before - x_a + 5.0:.1f} m)")
+    turn_radius = reach / math.tan((math.pi - theta) / 2)  # [m] of that right turn
+    with_turn = turn_radius >= MIN_TURN_RADIUS and x_a >= MIN_SECTION
+    if not with_turn:  # the approach's outbound lane starts there (a source of traffic)
+        x_a = x_m / 2
     cuts = np.cumsum([0.0, x_a, x_m - x_a, p.accel_length, p.taper_length, p.exit_length])
     rm = RoadMap("merge_road")
     main, opp = [], []
@@ -289,8 +294,9 @@ def merge_road(params: MergeParams | None = None, **kwargs) -> Piece:
     rm.connect(accel, taper)
     rm.connect(taper, main[4][-1])
     rm.set_neighbours(main[2][-1], accel)
-    turn = connector(rm, main[0][-1], app_out[0], "main_to_approach")
-    rm.lanes[turn].priority = PRIORITY_MAJOR
+    if with_turn:
+        turn = connector(rm, main[0][-1], app_out[0], "main_to_approach")
+        rm.lanes[turn].priority = PRIORITY_MAJOR
     ports = {"in": _port("in", approach.start, theta, app_in, app_out, w),
              "main_in": _port("main_in", np.zeros(2), 0.0, main[0], opp[0], w),
              "out": _port("out", np.array([cuts[5], 0.0]), 0.0, main[4], opp[4], w)}
