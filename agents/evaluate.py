@@ -11,11 +11,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from agents.common import CheckpointError, load_checkpoint, parse_yaml, split_task
 from agents.train import agent_class
 from mjdrive.envs import make_env
+from mjdrive.record.summary import SCHEMA, episode_row, roundabout_arms, summarize
 
 
 def load_agent(path: str | Path) -> tuple[Any, dict]:
@@ -53,22 +52,6 @@ def agent_from_payload(payload: dict, name: str) -> Any:
     return agent
 
 
-def end_reason(info: dict, terminated: bool, truncated: bool) -> str:
-    """Why the episode ended, from the task's info flags."""
-    if info.get("collision"):
-        return "collision"
-    if info.get("physics_error"):
-        return "physics_error"
-    if info.get("success"):
-        return "arrived"
-    if truncated:
-        return "time_limit"
-    for key in ("lane_invasion", "off_route", "off_road"):
-        if info.get(key):
-            return key
-    return "terminated" if terminated else "running"
-
-
 def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None, seed: int = 10_000,
              task_kwargs: dict | None = None, deterministic: bool = True,
              record_dir: str | Path | None = None, progress: str | None = None) -> dict[str, Any]:
@@ -93,6 +76,7 @@ def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None
 
         env = RecordEpisodes(env, record_dir)
     rows = []
+    arms = roundabout_arms(domain, name, kwargs)  # to count the roundabout's exits from the entry
     start = time.perf_counter()
     for episode in Progress(range(episodes), desc=progress, unit="episode", disable=progress is None):
         obs, info = env.reset(seed=seed + episode)
@@ -106,44 +90,18 @@ def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None
             steps += 1
             if terminated or truncated:
                 break
-        elapsed = float(info.get("elapsed_time", steps * env.unwrapped.dm_env.control_timestep()))
-        distance = float(info.get("distance", np.nan))
-        rows.append({
-            "episode": episode, "seed": seed + episode, "reward": round(total, 2), "steps": steps,
-            "time_s": round(elapsed, 2), "distance_m": round(distance, 2),
-            "speed_m_s": round(distance / elapsed, 3) if elapsed > 0 else 0.0,
-            "route_completion": round(float(info["route_completion"]), 4) if "route_completion" in info else None,
-            "success": bool(info.get("success", False)), "collision": bool(info.get("collision", False)),
-            "off_road": bool(info.get("off_road", False)),  # the whole footprint off the road at some step
-            "end": end_reason(info, terminated, truncated),
-        })
+        log = Path(info["record_path"]).name if "record_path" in info else None
+        rows.append(episode_row(info, episode=episode, seed=seed + episode, reward=total, steps=steps,
+                                terminated=terminated, truncated=truncated, log=log, arms=arms,
+                                control_dt=env.unwrapped.dm_env.control_timestep()))
     env.close()
     trained_on = " + ".join([config["task"], *(config.get("mix_tasks") or [])])  # a mix: every task in turn
-    return {"checkpoint": str(checkpoint), "algo": payload["algo"], "trained_on": trained_on,
+    return {"schema": SCHEMA, "command": "eval", "policy": f"{payload['algo']} {checkpoint}",
+            "checkpoint": str(checkpoint), "algo": payload["algo"], "trained_on": trained_on,
             "train_steps": payload["step"], "task": task, "task_kwargs": kwargs, "episodes": episodes,
             "deterministic": deterministic, "seed": seed, "wall_s": round(time.perf_counter() - start, 1),
             **({"ensemble": config["ensemble"]} if "ensemble" in config else {}),
             "summary": summarize(rows), "rows": rows}
-
-
-def summarize(rows: list[dict]) -> dict[str, float]:
-    def mean(key: str) -> float:
-        return float(np.mean([row[key] for row in rows]))
-
-    completion = [row["route_completion"] for row in rows if row["route_completion"] is not None] or [np.nan]
-    return {
-        "avg_reward": round(mean("reward"), 2), "avg_time_s": round(mean("time_s"), 2),
-        "avg_speed_m_s": round(mean("speed_m_s"), 3), "avg_distance_m": round(mean("distance_m"), 2),
-        "avg_steps": round(mean("steps"), 1), "success_pct": round(100 * mean("success"), 1),
-        "collision_pct": round(100 * mean("collision"), 1),
-        # arrivals that never left the road entirely (eq. 12 charges off-road driving only 0.05 per step)
-        "success_on_road_pct": round(100 * float(np.mean([r["success"] and not r.get("off_road", False)
-                                                          for r in rows])), 1),
-        **({} if np.isnan(completion[0]) else {
-            "route_completion_mean": round(float(np.mean(completion)), 4),
-            "route_completion_min": round(float(np.min(completion)), 4),
-            "route_completion_max": round(float(np.max(completion)), 4)}),
-    }
 
 
 def to_markdown(result: dict) -> str:

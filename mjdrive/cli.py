@@ -165,6 +165,7 @@ def cmd_run(args) -> int:
     from mjdrive.envs import make_env
     from mjdrive.policies import make_policy
     from mjdrive.progress import Progress, note
+    from mjdrive.record.summary import document, episode_row, roundabout_arms
     from mjdrive.video import EpisodeVideo
 
     domain, task = _split_task(args.task)
@@ -178,13 +179,14 @@ def cmd_run(args) -> int:
 
         env = RecordEpisodes(env, out, RecordOptions(camera_every=args.record_camera_every,
                                                      image_format=args.record_image_format))
-    summaries = []
+    rows = []
+    arms = roundabout_arms(domain, task, task_kwargs)  # to count the roundabout's exits from the entry
+    run_start = time.perf_counter()
     for episode in range(args.episodes):
         seed = args.seed + episode
         observation, info = env.reset(seed=seed)
         video = EpisodeVideo(env, out / f"episode_{episode:03d}.mp4") if args.video else None
         total_reward, steps = 0.0, 0
-        start = time.perf_counter()
         with Progress(desc=f"episode {episode + 1}/{args.episodes} (seed {seed})", unit="step",
                       total=env.unwrapped.max_episode_steps, leave=False) as bar:
             while True:
@@ -199,15 +201,15 @@ def cmd_run(args) -> int:
         if video:
             video.add_frame()
             video.close()
-        wall = time.perf_counter() - start
-        summary = {"episode": episode, "seed": seed, "steps": steps, "reward": round(total_reward, 2),
-                   "terminated": terminated, "truncated": truncated, "wall_s": round(wall, 2),
-                   **{k: v for k, v in info.items() if isinstance(v, (bool, int, float, str, type(None)))}}
-        if "record_path" in info:
-            summary["log"] = Path(info["record_path"]).name
-        summaries.append(summary)
-        print(json.dumps(summary))
-    (out / "summary.json").write_text(json.dumps(summaries, indent=2))
+        log = Path(info["record_path"]).name if "record_path" in info else None
+        rows.append(episode_row(info, episode=episode, seed=seed, reward=total_reward, steps=steps,
+                                terminated=terminated, truncated=truncated, arms=arms, log=log,
+                                control_dt=env.unwrapped.dm_env.control_timestep()))
+        print(json.dumps(rows[-1]))
+    summary = document("run", args.task, task_kwargs, args.policy, rows,
+                       wall_s=round(time.perf_counter() - run_start, 1))
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    print(json.dumps({"summary": summary["summary"]}))
     print(f"wrote {out}/ ({'MCAP logs, ' if args.record else ''}{'videos, ' if args.video else ''}summary.json)")
     env.close()
     return 0
@@ -224,13 +226,15 @@ def cmd_replay(args) -> int:
 
 
 def cmd_logs(args) -> int:
-    from mjdrive.record.reader import logs_table
+    from mjdrive.record.reader import logs_document, logs_table
 
     if not any(Path(args.folder).glob("*.mcap*")):
         raise ValueError(f"no .mcap logs in {args.folder}")
     table = logs_table(args.folder)
     print(table)
-    if args.out:
+    if args.out and Path(args.out).suffix == ".json":
+        Path(args.out).write_text(json.dumps(logs_document(args.folder), indent=2) + "\n")
+    elif args.out:
         Path(args.out).write_text(table + "\n")
     return 0
 
@@ -314,7 +318,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     logs = sub.add_parser("logs", help="summarise a folder of episode logs as a markdown table")
     logs.add_argument("folder", type=existing_folder, help="a folder of .mcap episode files")
-    logs.add_argument("--out", default=None, help="also write the table to this file")
+    logs.add_argument("--out", default=None,
+                      help="also write the table to this file (FILE.json: the episodes in the summary schema)")
     logs.set_defaults(func=cmd_logs)
 
     bench = sub.add_parser("bench", help="throughput: raw mj_step vs env steps, with and without camera")
@@ -340,6 +345,11 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--steps", type=int_at_least(1), default=None, help="env steps (default: the config's)")
     train.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=None, help="seed (default: the config's)")
     train.add_argument("--num-envs", type=int_at_least(1, 1024), default=None, help="env copies stepped together")
+    train.add_argument("--workers", type=int_at_least(0, 1024), default=None, metavar="N",
+                       help="step the copies in N worker processes (num_envs a multiple of N; 0: in this process)")
+    train.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
+                       help="step the copies in --workers Ray actors: a local Ray (no ADDRESS), 'auto' (the cluster "
+                            "of `ray start` on this machine) or HOST:PORT (pip install 'mjdrive[ray]')")
     train.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                        help="config override, dots for nesting, e.g. algorithm.batch_size=128 (repeatable)")
     train.add_argument("--out", default=None, help="run folder (default: runs/ALGO_TASK_seedS)")
@@ -358,6 +368,11 @@ def build_parser() -> argparse.ArgumentParser:
                           help="task keyword argument, e.g. time_limit=20 (repeatable)")
     evaluate.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=10_000, help="seed of the first episode")
     evaluate.add_argument("--stochastic", action="store_true", help="sample actions instead of greedy ones")
+    evaluate.add_argument("--workers", type=int_at_least(0, 1024), default=0, metavar="N",
+                          help="run the episodes in N worker processes (0: in this process); same results at any N")
+    evaluate.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
+                          help="run the episodes as Ray tasks: a local Ray of --workers CPUs (no ADDRESS), 'auto' or "
+                               "HOST:PORT (pip install 'mjdrive[ray]')")
     evaluate.add_argument("--out", default=None, help="write OUT.md and OUT.json")
     evaluate.add_argument("--record", action=argparse.BooleanOptionalAction, default=True,
                           help="write one MCAP log per episode (default on)")

@@ -4,6 +4,8 @@ summary schema of run, eval and logs."""
 from __future__ import annotations
 
 import io
+import json
+import shutil
 import subprocess
 import sys
 import time
@@ -12,6 +14,14 @@ from pathlib import Path
 import pytest
 
 from mjdrive.progress import PLAIN_INTERVAL, Progress
+from mjdrive.record.summary import (
+    ROW_FIELDS,
+    SCHEMA,
+    SUMMARY_FIELDS,
+    markdown_reference,
+    relative_exit,
+    roundabout_arms,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -59,8 +69,9 @@ def test_run_shows_steps_out_of_the_episode_length_without_carriage_returns(run_
     assert "/30 (" in result.stderr, result.stderr  # 3 s at 10 Hz: the bar's total is the episode length
 
 
-def test_run_refuses_a_folder_that_holds_a_run_and_overwrite_replaces_it(run_folder):
-    out, _ = run_folder
+def test_run_refuses_a_folder_that_holds_a_run_and_overwrite_replaces_it(run_folder, tmp_path):
+    out = tmp_path / "run"
+    shutil.copytree(run_folder[0], out)
     again = mjdrive("run", "--task", "waypoints/straight", "--episodes", "1", "--no-video", "--no-record",
                     "--task-kwarg", "time_limit=1", "--out", str(out))
     assert again.returncode == 2
@@ -88,3 +99,39 @@ def test_eval_writes_its_logs_beside_out_not_under_the_current_folder(tmp_path):
     assert out.with_suffix(".md").is_file() and out.with_suffix(".json").is_file()
     assert len(list(out.glob("*.mcap"))) == 1
     assert not (work / "runs").exists()
+
+
+def test_run_summary_is_one_documented_schema_shared_with_logs(run_folder, tmp_path):
+    out, _ = run_folder
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["schema"] == SCHEMA and summary["command"] == "run"
+    assert (summary["task"], summary["policy"], summary["seed"], summary["episodes"]) == \
+        ("waypoints/straight", "pure_pursuit", 0, 2)
+    assert set(summary["summary"]) <= set(SUMMARY_FIELDS)
+    for row in summary["rows"]:
+        assert list(row) == list(ROW_FIELDS)
+        for value in row.values():  # rounded: no float noise such as 22.799999999998242
+            assert not isinstance(value, float) or len(repr(value).split(".")[1]) <= 4, row
+    assert summary["rows"][0]["end"] == "time_limit" and summary["rows"][0]["time_s"] == 3.0
+    logs = mjdrive("logs", str(out), "--out", str(tmp_path / "logs.json"))
+    assert logs.returncode == 0, logs.stderr
+    from_logs = json.loads((tmp_path / "logs.json").read_text())
+    assert from_logs["schema"] == SCHEMA and from_logs["command"] == "logs"
+    assert from_logs["rows"] == summary["rows"]  # the same rows, read back from the MCAP files
+    assert f"{summary['summary']['avg_speed_m_s']:.2f} (mean)" in logs.stdout
+
+
+def test_docs_describe_every_summary_field():
+    assert markdown_reference() in (ROOT / "docs/summary.md").read_text()
+
+
+def test_roundabout_exit_is_counted_from_the_entry():
+    from mjdrive.envs import make_env
+
+    assert relative_exit({"entry": 3, "exit": 0}, 4) == 1 and relative_exit({"entry": 1, "exit": 0}, 4) == 3
+    for exit_number in (1, 2, 3):
+        env = make_env("roundabout", "d120", exits=[exit_number], road_users={"car": 1})
+        for seed in range(3):
+            _, info = env.reset(seed=seed)
+            assert relative_exit(info, roundabout_arms("roundabout", "d120", {})) == exit_number
+        env.close()

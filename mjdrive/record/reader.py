@@ -150,48 +150,64 @@ def _fmt(value: Any, digits: int = 2) -> str:
     return str(value)
 
 
-def logs_table(folder: str | Path) -> str:
-    """A markdown table of the episodes in `folder` (one row per file, damaged files flagged) and totals."""
-    rows = [
-        "| file | task | seed | steps | return | success | collision | time [s] | mean speed [m/s] | end |",
-        "| --- | --- | ---: | ---: | ---: | --- | --- | ---: | ---: | --- |",
-    ]
-    done: list[dict] = []
+def logs_rows(folder: str | Path) -> tuple[list[dict], list[str], list[str]]:
+    """(schema rows of the complete episodes in `folder`, their task names, one line per damaged or
+    unreadable file). Rows follow `mjdrive.record.summary.ROW_FIELDS`, as run's and eval's do."""
+    from mjdrive.record.summary import episode_row, roundabout_arms
+
+    rows: list[dict] = []
+    tasks: list[str] = []
     problems: list[str] = []
     for path in episode_files(folder):
         try:
-            episode = read_episode(path, topics={"/action", "/physics"})
+            episode = read_episode(path, topics=set())
         except EpisodeFileError as error:
-            rows.append(f"| {path.name} | - | - | - | - | - | - | - | - | unreadable |")
             problems.append(str(error))
             continue
         meta, summary = episode.metadata, episode.summary
         if summary is None:
-            rows.append(f"| {path.name} | {meta.get('task')} | {_fmt(meta.get('seed'))} | {episode.readable_steps} "
-                        f"| - | - | - | - "
-                        f"| - | incomplete |")
             problems.append(episode.describe_damage())
             continue
-        info = summary.get("info", {})
-        end = ("interrupted" if summary.get("interrupted") else "terminated" if summary.get("terminated")
-               else "time limit" if summary.get("truncated") else "-")
-        if info.get("physics_error"):
-            end = "physics error"
-        rows.append(
-            f"| {path.name} | {summary.get('task')} | {_fmt(summary.get('seed'))} | {summary.get('steps')} "
-            f"| {_fmt(summary.get('return'), 1)} | {_fmt(info.get('success'))} | {_fmt(info.get('collision'))} "
-            f"| {_fmt(info.get('elapsed_time', summary.get('sim_time')), 1)} | {_fmt(summary.get('mean_speed'))} "
-            f"| {end} |")
-        done.append({**summary, "info": info})
-    if done:
-        n = len(done)
-        rate = lambda key: sum(bool(d["info"].get(key)) for d in done) / n  # noqa: E731
-        rows.append(
-            f"| **all {n} complete** | | | {sum(d['steps'] for d in done)} "
-            f"| {np.mean([d['return'] for d in done]):.1f} (mean) | {rate('success'):.0%} | {rate('collision'):.0%} "
-            f"| {np.mean([d['info'].get('elapsed_time', d['sim_time']) for d in done]):.1f} (mean) "
-            f"| {np.mean([d['mean_speed'] for d in done]):.2f} | |")
-    lines = [f"# Episodes in {folder}", "", *rows]
+        steps = int(summary.get("steps", 0))
+        arms = roundabout_arms(meta["domain"], meta["task_name"], meta.get("task_kwargs"))
+        rows.append(episode_row(summary.get("info", {}), episode=len(rows), seed=summary.get("seed"),
+                                reward=summary.get("return", 0.0), steps=steps,
+                                terminated=bool(summary.get("terminated")), truncated=bool(summary.get("truncated")),
+                                interrupted=bool(summary.get("interrupted")), arms=arms, log=path.name,
+                                control_dt=float(summary.get("sim_time", 0.0)) / max(steps, 1)))
+        tasks.append(summary.get("task", meta.get("task")))
+    return rows, tasks, problems
+
+
+def logs_document(folder: str | Path) -> dict[str, Any]:
+    """`mjdrive logs --out FILE.json`: the folder's episodes in the summary schema of run and eval."""
+    from mjdrive.record.summary import document
+
+    rows, tasks, problems = logs_rows(folder)
+    return document("logs", " + ".join(dict.fromkeys(tasks)), {}, "-", rows, folder=str(folder),
+                    problems=problems)
+
+
+def logs_table(folder: str | Path) -> str:
+    """A markdown table of the episodes in `folder` (one row per complete file, in the summary schema of
+    run and eval), their means, and the damaged files."""
+    from mjdrive.record.summary import summarize
+
+    rows, tasks, problems = logs_rows(folder)
+    lines = [
+        f"# Episodes in {folder}", "",
+        "| file | task | seed | steps | reward | success | collision | time [s] | mean speed [m/s] | exit | end |",
+        "| --- | --- | ---: | ---: | ---: | --- | --- | ---: | ---: | ---: | --- |",
+    ]
+    for row, task in zip(rows, tasks, strict=True):
+        lines.append(f"| {row['log']} | {task} | {_fmt(row['seed'])} | {row['steps']} | {_fmt(row['reward'], 1)} "
+                     f"| {_fmt(row['success'])} | {_fmt(row['collision'])} | {_fmt(row['time_s'], 1)} "
+                     f"| {_fmt(row['speed_m_s'])} | {_fmt(row['exit'])} | {row['end']} |")
+    if rows:
+        s = summarize(rows)
+        lines.append(f"| **all {len(rows)} complete** | | | {sum(r['steps'] for r in rows)} "
+                     f"| {s['avg_reward']:.1f} (mean) | {s['success_pct']:.0f}% | {s['collision_pct']:.0f}% "
+                     f"| {s['avg_time_s']:.1f} (mean) | {s['avg_speed_m_s']:.2f} (mean) | | |")
     if problems:
         lines += ["", "Problems:", *[f"- {p}" for p in problems]]
     return "\n".join(lines)
