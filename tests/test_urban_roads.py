@@ -206,8 +206,7 @@ def test_tactical_trajectory_intervals_are_ordered_disjoint_and_inside_the_route
     offsets = np.cumsum([0.0] + [rm.lanes[i].length for i in route[:-1]])
     at = {rm.lanes[i].name: offsets[k] for k, i in enumerate(route)}
     assert tt.interval("roundabout")[0] < at["roundabout/arm2_entry"] < tt.interval("roundabout")[1]
-    assert tt.interval("lane_change") == pytest.approx((at["overtaking_road/main_1"],
-                                                         at["overtaking_road/taper_out_1"]))
+    assert tt.interval("lane_change") == pytest.approx((at["overtaking_road/main_1"], at["overtaking_road/out_1"]))
     assert tt.interval("crossroad")[0] < at["crossroad/approach->straight_0"] < tt.interval("crossroad")[1]
     assert tt.interval("merge")[0] < at["merge_road/taper"] < tt.interval("merge")[1]
 

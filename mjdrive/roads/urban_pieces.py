@@ -156,8 +156,8 @@ def overtaking_road(params: OvertakingRoadParams | None = None, **kwargs) -> Pie
             rm.connect(i, j)
     ports = {"in": _port("in", np.array([x[0], 0.0]), 0.0, inn, opp[0], w),
              "out": _port("out", np.array([x[5], y_out]), 0.0, out, opp[-1], w)}
-    span = ScenarioSpan("lane_change", tuple((i, 0.0) for i in main),
-                        tuple((i, rm.lanes[i].length) for i in main))
+    # The scenario runs to the end of the closing taper: a car still in a closing lane changes back there.
+    span = ScenarioSpan("lane_change", tuple((i, 0.0) for i in main), tuple((i, 0.0) for i in out))
     return Piece("overtaking_road", rm.freeze(), ports, "in", "out", (main[-1],), (span,))
 
 
