@@ -16,9 +16,12 @@ $(STAMP)/system:
 	else echo "not root or no apt-get: make sure libegl1 libopengl0 libgl1-mesa-dri (or libosmesa6) are installed"; fi
 	@touch $@
 
-# torch first and pinned (an unpinned torch pulls GBs of CUDA packages), then the project.
+# torch first and pinned, then the project. TORCH_INDEX picks the wheel index torch comes from: empty (the
+# default) uses pip's own configuration, which resolves to CUDA builds (GBs) where no local CPU wheel exists;
+# `make run TORCH_INDEX=https://download.pytorch.org/whl/cpu` gets PyTorch's CPU-only build anywhere.
+TORCH_INDEX ?=
 $(STAMP)/python: pyproject.toml $(STAMP)/system
-	$(PIP) install -q torch==2.13.0
+	$(PIP) install -q torch==2.13.0 $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX))
 	$(PIP) install -q -e ".[learn,dev]"
 	@touch $@
 

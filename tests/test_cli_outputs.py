@@ -135,3 +135,16 @@ def test_roundabout_exit_is_counted_from_the_entry():
             _, info = env.reset(seed=seed)
             assert relative_exit(info, roundabout_arms("roundabout", "d120", {})) == exit_number
         env.close()
+
+
+def test_gymnasium_ids_are_named_after_their_tasks_and_the_old_id_warns():
+    import gymnasium
+
+    from mjdrive.envs import GYM_IDS
+
+    assert GYM_IDS["mjdrive/Waypoints-RandomRoutes-v0"][:2] == ("waypoints", "random_routes")
+    assert "mjdrive/Waypoints-Random-v0" not in GYM_IDS
+    with pytest.warns(DeprecationWarning, match="Waypoints-RandomRoutes-v0"):
+        env = gymnasium.make("mjdrive/Waypoints-Random-v0")
+    assert env.unwrapped.task_name == "random_routes"
+    env.close()

@@ -73,7 +73,7 @@ def _rollout(env_id, seed, steps=60):
     return np.array(states), observations
 
 
-@pytest.mark.parametrize("env_id", ["mjdrive/Waypoints-Random-v0", "mjdrive/Waypoints-Straight-Camera-v0"])
+@pytest.mark.parametrize("env_id", ["mjdrive/Waypoints-RandomRoutes-v0", "mjdrive/Waypoints-Straight-Camera-v0"])
 def test_same_seed_same_trajectory_bit_for_bit(env_id):
     a, obs_a = _rollout(env_id, 3)
     b, obs_b = _rollout(env_id, 3)

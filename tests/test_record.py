@@ -174,8 +174,9 @@ def test_replay_detects_a_wrong_action(tmp_path):
     assert not result.match and result.mismatch_step == 3 and "qvel" in result.mismatch_fields
 
 
-def test_dm_control_wrapper_replays_without_seeds(tmp_path):
-    """suite.load-style env, no reset seeds: the RNG state taken before each reset makes it replayable."""
+def test_dm_control_wrapper_replays_without_reset_seeds(tmp_path):
+    """suite.load-style env, no reset seeds: the RNG state taken before each reset makes it replayable; the
+    logs name the task's seed (`random`) and the episode index."""
     env = load("waypoints", "four_routes", {"random": 7, **TASK_KWARGS}, out_dir=tmp_path)
     for _ in range(2):
         timestep = env.reset()
@@ -183,7 +184,7 @@ def test_dm_control_wrapper_replays_without_seeds(tmp_path):
             timestep = env.step(np.array([0.4, 0.05, 0.0]))
     env.close()
     names = sorted(p.name for p in tmp_path.glob("*.mcap"))
-    assert names == ["waypoints-four_routes_noseed_00000.mcap", "waypoints-four_routes_noseed_00001.mcap"]
+    assert names == ["waypoints-four_routes_7_00000.mcap", "waypoints-four_routes_7_00001.mcap"]
     assert replay(tmp_path / names[1]).match
 
 

@@ -65,6 +65,10 @@ class RecordedEnvironment(dm_env.Environment):
                  first_episode: int = 0):
         self._env = env
         self.recorder = EpisodeRecorder(out_dir, spec, options, first_episode)
+        # dm_control seeds a task once (task kwarg `random`); its episodes k = 0, 1, ... continue that RNG, so
+        # a log names that seed and its episode index (replay restores the RNG state taken at each reset)
+        random = spec.task_kwargs.get("random")
+        self._seed = random if isinstance(random, int) and not isinstance(random, bool) else None
 
     def __getattr__(self, name: str) -> Any:  # physics, task, control_timestep, ...
         return getattr(self._env, name)
@@ -72,7 +76,7 @@ class RecordedEnvironment(dm_env.Environment):
     def reset(self) -> dm_env.TimeStep:
         rng_state = self._env.task.random.get_state()
         timestep = self._env.reset()
-        self.recorder.begin(self._env.task, self._env.physics, rng_state=rng_state)
+        self.recorder.begin(self._env.task, self._env.physics, seed=self._seed, rng_state=rng_state)
         return timestep
 
     def step(self, action) -> dm_env.TimeStep:
