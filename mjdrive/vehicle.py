@@ -193,6 +193,20 @@ class Vehicle:
         left = 2.0 * (x * y - w * z) * vx + (1.0 - 2.0 * (x * x + z * z)) * vy + 2.0 * (y * z + w * x) * vz
         return forward, left
 
+    def planar_state(self, data: mujoco.MjData) -> tuple[float, float, float, float, float, float]:
+        """(x [m], y [m], yaw [rad], forward [m/s], leftward [m/s], yaw rate [rad/s]): `pose`, `velocity_body`
+        and `yaw_rate` from one read of the chassis state (the same arithmetic, for the per-step path)."""
+        q, v, a = data.qpos, data.qvel, self._q
+        w, x, y, z = float(q[a + 3]), float(q[a + 4]), float(q[a + 5]), float(q[a + 6])
+        yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+        b = self._v
+        vx, vy, vz = float(v[b]), float(v[b + 1]), float(v[b + 2])
+        forward = (1.0 - 2.0 * (y * y + z * z)) * vx + 2.0 * (x * y + w * z) * vy + 2.0 * (x * z - w * y) * vz
+        left = 2.0 * (x * y - w * z) * vx + (1.0 - 2.0 * (x * x + z * z)) * vy + 2.0 * (y * z + w * x) * vz
+        yaw_rate = (2.0 * (x * z - w * y) * float(v[b + 3]) + 2.0 * (y * z + w * x) * float(v[b + 4])
+                    + (1.0 - 2.0 * (x * x + y * y)) * float(v[b + 5]))  # fmt: skip
+        return float(q[a]), float(q[a + 1]), yaw, forward, left, yaw_rate
+
     def speed(self, data: mujoco.MjData) -> float:
         """Signed longitudinal speed [m/s] (negative when rolling backwards)."""
         return self.velocity_body(data)[0]

@@ -302,6 +302,16 @@ def test_reset_moving_and_readouts(car):
     assert along < -3.0  # half brake gives about half the 1 g full-brake deceleration
 
 
+def test_planar_state_is_the_readouts_in_one_call(car):
+    model, veh = car
+    data = mujoco.MjData(model)
+    veh.reset(data, 4.0, -1.0, 2.5, 8.0)
+    drive(model, data, veh, lambda t, d: (0.6, 0.7, 0.0), 2.0)  # turning, rolling and pitching a little
+    x, y, yaw, forward, left, yaw_rate = veh.planar_state(data)
+    assert (x, y, yaw) == veh.pose(data) and (forward, left) == veh.velocity_body(data)  # exactly
+    assert yaw_rate == veh.yaw_rate(data) and abs(yaw_rate) > 0.5 and abs(left) > 1e-3
+
+
 def test_add_vehicle_names_and_errors():
     spec = mujoco.MjSpec.from_file(str(XML_DIR / "scenes" / "ground.xml"))
     with pytest.raises(ValueError, match="sedan"):

@@ -249,8 +249,9 @@ class RoundaboutTask(DrivingTask):
 
     def substep(self, physics: Physics, dt: float) -> None:
         """Physics.substep_callback: sample the ego's contacts, then move the traffic (its mocap poses)."""
-        super().substep(physics, dt)
-        self.traffic.advance(dt, self._ego_fn, physics.raw_data)
+        data = physics.raw_data
+        self.collision_sensor.sample(data)  # DrivingTask.substep
+        self.traffic.advance(dt, self._ego_fn, data)
 
     def ego_state(self, physics: Physics) -> EgoState:
         """The ego for traffic (and the scripted drivers): pose, speed, and its place on the route."""
@@ -270,16 +271,14 @@ class RoundaboutTask(DrivingTask):
 
     def _update_ego(self, physics: Physics) -> None:
         data = physics.raw_data
-        x, y, yaw = self.vehicle.pose(data)
+        x, y, yaw, self.speed, _, self.yaw_rate = self.vehicle.planar_state(data)  # [m/s], [rad/s]
         self.xy, self.yaw = np.array([x, y]), yaw
-        self.speed = float(self.vehicle.speed(data))  # [m/s]
-        self.yaw_rate = float(self.vehicle.yaw_rate(data))  # [rad/s]
         c, s_ = math.cos(yaw), math.sin(yaw)
         self.corners = self.xy + self._footprint @ np.array([[c, s_], [-s_, c]])  # (4,2) [m]
         s, d = self.route_frame(np.vstack([self.xy[None], self.corners]))
         self.route_s, self.lane_offset = float(s[0]), float(d[0])  # [m]
         self.corner_offsets = d[1:]  # [m] of the footprint corners from the route centre line
-        self._frame_time = physics.data.time
+        self._frame_time = data.time
         tangent = self.route_frame.tangent[self.route_frame.segment]
         self.heading_error = float(wrap_angle(yaw - math.atan2(tangent[1], tangent[0])))  # [rad]
 
@@ -303,7 +302,7 @@ class RoundaboutTask(DrivingTask):
         info["off_route"] |= self.off_route is not None and abs(self.lane_offset) > self.off_route
         info["success"] = bool(arrived and not info["collision"])
         info["steps"] += 1
-        info["elapsed_time"] = float(physics.data.time)
+        info["elapsed_time"] = float(physics.raw_data.time)
         info["distance"] += math.hypot(self.xy[0] - previous_xy[0], self.xy[1] - previous_xy[1])
         info["average_speed"] = info["distance"] / max(info["elapsed_time"], 1e-9)
         info["remaining_distance"] = remaining
