@@ -8,9 +8,12 @@ both networks), clip 0.1, 4 epochs.
 
 from __future__ import annotations
 
+import contextlib
 import copy
+import io
 import math
 import warnings
+from collections.abc import Iterator
 
 import gymnasium as gym
 import numpy as np
@@ -22,6 +25,19 @@ from tensordict import TensorDict
 from agents.common import CheckpointError, Run, load_module_state, make_batched_env
 from mjdrive.envs.batched import ObservationLayout
 from mjdrive.envs.rsl_rl_env import RslRlVecEnv, action_scaler, to_tensordict
+
+
+@contextlib.contextmanager
+def quiet_rsl_rl() -> Iterator[None]:
+    """Keep rsl-rl's prints (model dumps, 'Resolved observation sets' banners) off stdout; they are
+    shown only if building the models fails."""
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(captured):
+            yield
+    except BaseException:
+        print(captured.getvalue(), end="")
+        raise
 
 
 def zero_observation(layout: ObservationLayout, n: int = 1) -> TensorDict:
@@ -43,9 +59,10 @@ class PPOAgent:
         cfg = copy.deepcopy(config["rsl_rl"])
         self.layout = ObservationLayout(observation_space)
         obs = zero_observation(self.layout)
-        obs_groups = resolve_obs_groups(obs, cfg["obs_groups"], ["actor", "critic"])
-        actor_class, actor_cfg = resolve_class(cfg["actor"])
-        self.actor = actor_class(obs, obs_groups, "actor", int(np.prod(action_space.shape)), **actor_cfg)
+        with quiet_rsl_rl():
+            obs_groups = resolve_obs_groups(obs, cfg["obs_groups"], ["actor", "critic"])
+            actor_class, actor_cfg = resolve_class(cfg["actor"])
+            self.actor = actor_class(obs, obs_groups, "actor", int(np.prod(action_space.shape)), **actor_cfg)
         self.actor.eval()
         scale, offset = action_scaler(action_space)
         self.scale, self.offset = scale, offset
@@ -71,7 +88,8 @@ def train(config: dict, run: Run, resume_state: dict | None = None) -> None:
     cfg.setdefault("save_interval", 10**9)
     env = RslRlVecEnv(make_batched_env(config), reward_scale=float(config.get("reward_scale", 1.0)))
     env.seed(int(config.get("seed", 0)) + run.step)
-    with warnings.catch_warnings():  # the duplicate-parameter warning of share_cnn_encoders, fixed below
+    with warnings.catch_warnings(), quiet_rsl_rl():  # the duplicate-parameter warning of share_cnn_encoders,
+        # fixed below
         warnings.filterwarnings("ignore", message="optimizer contains a parameter group with duplicate")
         runner = OnPolicyRunner(env, cfg, log_dir=None, device="cpu")  # no rsl-rl logger: we log ourselves
     params = list(runner.alg.optimizer.param_groups[0]["params"])
@@ -91,10 +109,11 @@ def train(config: dict, run: Run, resume_state: dict | None = None) -> None:
     runner.alg.update = update_and_keep_losses
     per_iteration = env.num_envs * cfg["num_steps_per_env"]
     iterations = math.ceil((run.total_steps - run.step) / per_iteration)
-    if run.step + iterations * per_iteration != run.total_steps:  # PPO learns from whole rollouts only
+    rounded = run.step + iterations * per_iteration
+    if rounded != run.total_steps:  # PPO learns from whole rollouts only
         print(f"PPO collects rollouts of {env.num_envs} envs x {cfg['num_steps_per_env']} steps = {per_iteration}: "
-              f"training for {run.step + iterations * per_iteration:,} env steps (asked {run.total_steps:,})",
-              flush=True)
+              f"training for {rounded:,} env steps (asked {run.total_steps:,})", flush=True)
+        run.total_steps = run.bar.total = rounded
     for _ in range(iterations):
         runner.learn(1)
         run.add_steps(per_iteration, env.completed)

@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from mjdrive.progress import PLAIN_INTERVAL, Progress
@@ -99,6 +100,7 @@ def test_eval_writes_its_logs_beside_out_not_under_the_current_folder(tmp_path):
     assert out.with_suffix(".md").is_file() and out.with_suffix(".json").is_file()
     assert len(list(out.glob("*.mcap"))) == 1
     assert not (work / "runs").exists()
+    assert "Resolved observation sets" not in result.stdout and "Actor Model" not in result.stdout  # no rsl-rl dump
 
 
 def test_run_summary_is_one_documented_schema_shared_with_logs(run_folder, tmp_path):
@@ -147,4 +149,23 @@ def test_gymnasium_ids_are_named_after_their_tasks_and_the_old_id_warns():
     with pytest.warns(DeprecationWarning, match="Waypoints-RandomRoutes-v0"):
         env = gymnasium.make("mjdrive/Waypoints-Random-v0")
     assert env.unwrapped.task_name == "random_routes"
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", ["mjdrive/Waypoints-RandomRoutes-v0", "mjdrive/Roundabout-D210-v0"])
+def test_observation_spaces_are_finite_and_hold_a_reckless_drive(env_id):
+    """Every observation has finite bounds (no gymnasium warning) that hold while the car crashes about."""
+    import gymnasium
+
+    env = gymnasium.make(env_id, off_route=None) if "Roundabout" in env_id else gymnasium.make(env_id)
+    for space in env.observation_space.values():
+        assert np.all(np.isfinite(space.low)) and np.all(np.isfinite(space.high))
+    observation, _ = env.reset(seed=3)
+    rng = np.random.default_rng(0)
+    for step in range(150):
+        assert env.observation_space.contains(observation), (step, observation)
+        action = np.array([1.0, rng.choice([-1.0, 1.0]), 0.0], np.float32)
+        observation, _, terminated, truncated, _ = env.step(action)
+        if terminated or truncated:
+            observation, _ = env.reset()
     env.close()

@@ -13,14 +13,52 @@ from dm_env import specs
 from mjdrive import suite
 from mjdrive.envs.actions import wrap_actions
 
+MAX_SPEED = 100.0  # [m/s] above any road user's and the cars' top speeds (sedan 200 km/h = 56 m/s)
+MAX_YAW_RATE = 8 * np.pi  # [rad/s] 4 turns a second: beyond it the physics blows up, which ends the episode
+MAX_SIZE = 20.0  # [m] longest road-user box side
 
-def spec_to_space(spec: specs.Array) -> gym.spaces.Box:
-    """A gymnasium Box for a dm_env array spec (bounded or not)."""
+
+def observation_bounds(name: str, shape: tuple[int, ...], reach: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """(low, high) of the unbounded-spec observations of the tasks, from what they measure: angles wrap,
+    cos/sin and flags lie in [-1, 1] / [0, 1], speeds stay under MAX_SPEED, and a distance on the map is at
+    most `reach` [m] (the map's diagonal plus the farthest the ego can drive in an episode). None: unknown."""
+    deg, rad = 180.0, np.pi
+    columns: dict[str, list[tuple[float, float]]] = {
+        "waypoint_angles": [(-deg, deg)], "heading_error": [(-deg, deg)],  # [deg] wrapped
+        "speed": [(-3.6 * MAX_SPEED, 3.6 * MAX_SPEED)],  # [km/h] signed (reverse)
+        "lane_offset": [(-reach, reach)], "waypoint_distance": [(0.0, reach)],  # [m]
+        "destination": [(-reach, reach)],  # [m]
+        # roundabout ego: speed [m/s], yaw rate [rad/s], heading error [rad], lateral offset [m], cos/sin(yaw)
+        "ego": [(-MAX_SPEED, MAX_SPEED), (-MAX_YAW_RATE, MAX_YAW_RATE), (-rad, rad), (-reach, reach),
+                (-1.0, 1.0), (-1.0, 1.0)],
+        # roundabout road users: present, dx, dy [m], dvx, dvy [m/s], cos/sin relative yaw, length, width [m],
+        # one-hot kind
+        "road_users": [(0.0, 1.0), (-reach, reach), (-reach, reach), (-2 * MAX_SPEED, 2 * MAX_SPEED),
+                       (-2 * MAX_SPEED, 2 * MAX_SPEED), (-1.0, 1.0), (-1.0, 1.0), (0.0, MAX_SIZE), (0.0, MAX_SIZE)],
+    }
+    if name not in columns:
+        return None
+    bounds = columns[name]
+    if len(bounds) == 1:  # the same for every element
+        bounds = bounds * shape[-1]
+    if name == "road_users":  # one-hot kind columns after the listed ones
+        bounds = bounds + [(0.0, 1.0)] * (shape[-1] - len(bounds))
+    if len(bounds) != shape[-1]:
+        return None
+    low, high = np.array(bounds, np.float64).T
+    return np.broadcast_to(low, shape), np.broadcast_to(high, shape)
+
+
+def spec_to_space(spec: specs.Array, reach: float = np.inf) -> gym.spaces.Box:
+    """A gymnasium Box for a dm_env array spec: its own bounds, else `observation_bounds` of its name."""
     if isinstance(spec, specs.BoundedArray):
         low = np.broadcast_to(spec.minimum, spec.shape).astype(spec.dtype)
         high = np.broadcast_to(spec.maximum, spec.shape).astype(spec.dtype)
         return gym.spaces.Box(low, high, spec.shape, spec.dtype)
-    return gym.spaces.Box(-np.inf, np.inf, spec.shape, spec.dtype)
+    bounds = observation_bounds(spec.name, spec.shape, reach) if np.isfinite(reach) else None
+    if bounds is None:  # an observation this module does not know: no bound is claimed
+        return gym.spaces.Box(-np.inf, np.inf, spec.shape, spec.dtype)
+    return gym.spaces.Box(bounds[0].astype(spec.dtype), bounds[1].astype(spec.dtype), spec.shape, spec.dtype)
 
 
 class DrivingGymEnv(gym.Env):
@@ -50,8 +88,11 @@ class DrivingGymEnv(gym.Env):
         self.environment_kwargs = dict(environment_kwargs) if environment_kwargs else None  # for logs/replay
         self.dm_env = suite.load(domain, task, self.task_kwargs, environment_kwargs)
         self.task = self.dm_env.task
+        x0, y0, x1, y1 = self.task.road_map.bounds()
+        reach = float(np.hypot(x1 - x0, y1 - y0) + MAX_SPEED * self.max_episode_steps
+                      * self.dm_env.control_timestep())  # [m] no distance between the ego and the map exceeds it
         self.observation_space = gym.spaces.Dict(
-            {name: spec_to_space(spec) for name, spec in self.dm_env.observation_spec().items()}
+            {name: spec_to_space(spec, reach) for name, spec in self.dm_env.observation_spec().items()}
         )
         action_spec = self.dm_env.action_spec()
         self.action_space = gym.spaces.Box(
