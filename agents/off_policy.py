@@ -1,4 +1,5 @@
-"""The loop SAC and DQN share: act in a BatchedEnv, store transitions, update from replay, log, checkpoint.
+"""The loop SAC and DQN share: act in a vector env (`mjdrive.envs.vector`: in process, worker processes or Ray),
+store transitions, update from replay, log, checkpoint.
 
 An off-policy agent provides:
     explore(obs, step) -> (stored_action, env_action)   batched; random before `learning_starts`
@@ -19,7 +20,7 @@ import numpy as np
 import torch
 
 from agents.common import ObsBatch, ReplayBuffer, Run, bounded_action_map, training_tasks
-from mjdrive.envs.batched import BatchedEnv
+from mjdrive.envs.vector import VecEnv
 
 DEMONSTRATION_DEFAULTS = {
     "policy": "autopilot",  # a scripted policy of mjdrive.policies (privileged: it reads the task's state)
@@ -30,7 +31,7 @@ DEMONSTRATORS = ("autopilot", "pure_pursuit")  # the scripted drivers of mjdrive
 REPLAY_DIR = "replay"  # in a run folder: the buffer saved when training is interrupted (ReplayBuffer.save)
 
 
-def run_off_policy(agent: Any, env: BatchedEnv, run: Run, buffer: ReplayBuffer, hp: dict, seed: int,
+def run_off_policy(agent: Any, env: VecEnv, run: Run, buffer: ReplayBuffer, hp: dict, seed: int,
                    demonstrations: ReplayBuffer | None = None, demo_fraction: float = 0.0,
                    experience: int = 0) -> None:
     """Train `agent` until `run.total_steps` env steps; `hp`: learning_starts, batch_size, updates_per_step,

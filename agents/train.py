@@ -6,6 +6,7 @@ checkpoints/step_N.pt (periodic) and policy.pt (the acting network only, for eva
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import json
 import signal
@@ -24,6 +25,7 @@ from agents.common import (
     make_batched_env,
     save_checkpoint,
     set_seed,
+    training_tasks,
 )
 
 ALGOS = ("ppo", "sac", "dqn", "trpo")
@@ -83,6 +85,22 @@ def load_initial_state(path: str | Path, config: dict) -> tuple[dict, int, bool]
     return payload["state"], experience, True
 
 
+def make_training_env(config: dict, num_envs: int | None = None, **overrides):
+    """The vector env a config describes (`agents.common.make_batched_env`'s keys), in this process, or with
+    `workers: N` over N worker processes, or with `ray: ADDRESS` ("local", "auto", HOST:PORT) over N Ray actors
+    (`mjdrive.envs.vector`); every backend gives the same episodes."""
+    workers, address = int(config.get("workers") or 0), config.get("ray")
+    if not workers and address is None:
+        return make_batched_env(config, num_envs, **overrides)
+    from mjdrive.envs.vector import make_vec_env
+
+    domain, tasks = training_tasks(config)
+    return make_vec_env(domain, tasks, num_envs=num_envs or config.get("num_envs", 1),
+                        actions=config.get("actions", "continuous"), workers=workers, ray=address,
+                        backend=config.get("backend", "threads"), record_dir=config.get("record_dir"),
+                        **{**config.get("task_kwargs", {}), **overrides})
+
+
 def agent_class(algo: str):
     """The acting/learning class of `algo` (imported lazily: PPO pulls rsl-rl in)."""
     if algo == "sac":
@@ -135,6 +153,7 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
         state, experience, acting_only = load_initial_state(config["init_from"], config)
     run = Run(out, config, total_steps=int(config["steps"]), start_step=start_step,
               start_episode=start_episode, progress=progress, tensorboard=config.get("tensorboard", True))
+    stack = contextlib.ExitStack()
     try:
         if algo == "ppo":
             from agents import ppo
@@ -147,7 +166,8 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
         else:
             from agents.off_policy import REPLAY_DIR, collect_demonstrations, demonstration_settings, run_off_policy
 
-            env = make_batched_env(config)
+            env = make_training_env(config)
+            stack.callback(env.close)
             agent = agent_class(algo)(config, env.single_observation_space, env.single_action_space)
             if state is not None:
                 agent.load_state_dict(state, inference_only=acting_only)
@@ -168,8 +188,8 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
                 (out / "demonstrations.json").write_text(json.dumps({**settings, **counts}, indent=1))
                 fraction = float(settings["fraction"])
             run_off_policy(agent, env, run, buffer, hp, seed, demonstrations, fraction, experience)
-            env.close()
     finally:
+        stack.close()  # the env (and its workers), also on Ctrl-C or an error
         run.close()
     return export_policy(out / "checkpoint.pt", out / "policy.pt")
 
@@ -210,8 +230,12 @@ def train_command(args) -> int:
         overrides.append(f"seed={args.seed}")
     if args.num_envs is not None:
         overrides.append(f"num_envs={args.num_envs}")
+    if getattr(args, "workers", None) is not None:
+        overrides.append(f"workers={args.workers}")
     overrides += [f"task_kwargs.{pair}" for pair in args.task_kwarg]
     config = apply_overrides(config, overrides)
+    if getattr(args, "ray", None) is not None:
+        config["ray"] = args.ray  # "local", "auto" or HOST:PORT: the copies run in Ray actors
     if args.record_dir:
         config["record_dir"] = args.record_dir  # one MCAP log per training episode, per env copy
     out = args.out or f"runs/{config['algo']}_{config['task'].replace('/', '_')}_seed{config.get('seed', 0)}"

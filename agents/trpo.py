@@ -11,7 +11,7 @@ import torch
 import torch.nn as nn
 from torch.distributions import Categorical, Distribution, Normal
 
-from agents.common import Encoder, ObsBatch, Run, load_module_state, make_batched_env, mlp
+from agents.common import Encoder, ObsBatch, Run, load_module_state, mlp
 from mjdrive.envs.batched import ObservationLayout
 
 DEFAULTS = {
@@ -179,7 +179,16 @@ class TRPOAgent:
 
 def train(config: dict, run: Run, resume_state: dict | None = None) -> None:
     """Collect `rollout_steps` per env copy, compute GAE, one TRPO step; until `run.total_steps`."""
-    env = make_batched_env(config)
+    from agents.train import make_training_env
+
+    env = make_training_env(config)
+    try:
+        _learn(config, env, run, resume_state)
+    finally:
+        env.close()  # and its workers, also on Ctrl-C or an error
+
+
+def _learn(config: dict, env, run: Run, resume_state: dict | None) -> None:
     agent = TRPOAgent(config, env.single_observation_space, env.single_action_space)
     if resume_state is not None:
         agent.load_state_dict(resume_state)
@@ -223,5 +232,4 @@ def train(config: dict, run: Run, resume_state: dict | None = None) -> None:
         if run.checkpoint_due():
             run.save("trpo", agent.state_dict())
     run.save("trpo", agent.state_dict(), periodic=False)
-    env.close()
 

@@ -1,4 +1,6 @@
-"""rsl-rl 5.x `VecEnv` over a `BatchedEnv` (needs the `learn` extra: torch, tensordict, rsl-rl-lib).
+"""rsl-rl 5.x `VecEnv` over any mjdrive vector env (`mjdrive.envs.vector`: a `BatchedEnv` in process, worker
+processes or Ray actors; needs the `learn` extra: torch, tensordict, rsl-rl-lib). It converts only dtypes and
+the device; everything else is the vector env's.
 
 Observation groups (TensorDict, batch size [num_envs]):
   "policy": (N, F) float32, the non-image observations flattened and scaled (`ObservationLayout`);
@@ -20,7 +22,8 @@ import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
-from mjdrive.envs.batched import BatchedEnv, ObservationLayout
+from mjdrive.envs.batched import ObservationLayout
+from mjdrive.envs.vector import VecEnv as MjVecEnv
 
 LOGGED_METRICS = ("route_completion", "success", "collision", "lane_invasion", "off_road")
 
@@ -41,9 +44,9 @@ def action_scaler(space: gym.spaces.Box) -> tuple[np.ndarray, np.ndarray]:
 
 
 class RslRlVecEnv(VecEnv):
-    """A `BatchedEnv` as an rsl-rl `VecEnv`; `reward_scale` multiplies the rewards the learner sees."""
+    """An mjdrive vector env as an rsl-rl `VecEnv`; `reward_scale` multiplies the rewards the learner sees."""
 
-    def __init__(self, env: BatchedEnv, device: str = "cpu", reward_scale: float = 1.0):
+    def __init__(self, env: MjVecEnv, device: str = "cpu", reward_scale: float = 1.0):
         if env.discrete:
             raise ValueError("RslRlVecEnv needs continuous actions (actions='continuous'); use DQN for tables")
         self.env = env
@@ -58,9 +61,8 @@ class RslRlVecEnv(VecEnv):
                     "task_kwargs": env.task_kwargs, "reward_scale": reward_scale}
         self._scale, self._offset = action_scaler(env.single_action_space)
         self.completed: list[dict] = []  # final infos of the episodes ended since the caller last cleared it
-        if not env._obs:
-            env.reset(seed=0)
-        self._obs = self.to_tensordict(env.observations())
+        obs = env.observations()
+        self._obs = self.to_tensordict(env.reset(seed=0)[0] if obs is None else obs)
 
     def seed(self, seed: int) -> None:
         """Reset every copy with `seed` (copy i gets seed + i)."""

@@ -28,7 +28,10 @@ Evaluation, whose episodes are independent, reruns them elsewhere (`agents.evalu
 
 from __future__ import annotations
 
+import importlib.util
+import multiprocessing
 import os
+import signal
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -78,9 +81,24 @@ def pin_threads() -> None:
         torch.set_num_threads(1)
 
 
+# imported once by the forkserver, so that each worker forks with them loaded (torch and its compiler stack, which
+# torch.optim pulls in, take seconds to import); nothing that opens a GL display (dm_control's EGL backend does at
+# import): every worker initialises its own
+FORKSERVER_PRELOAD = ("numpy", "gymnasium", "torch", "torch._dynamo")
+
+
 def default_context() -> str:
     """forkserver on Linux (workers fork from a clean server: no GL or torch state of the parent), else spawn."""
     return "forkserver" if sys.platform.startswith("linux") else "spawn"
+
+
+def worker_context(name: str | None = None):
+    """The multiprocessing context of the workers (`default_context()` unless named); a forkserver preloads
+    `FORKSERVER_PRELOAD` (when installed; it takes effect where the server has not started yet)."""
+    ctx = multiprocessing.get_context(name or default_context())
+    if ctx.get_start_method() == "forkserver":
+        ctx.set_forkserver_preload(["__main__", *(m for m in FORKSERVER_PRELOAD if importlib.util.find_spec(m))])
+    return ctx
 
 
 @dataclass(frozen=True)
@@ -138,6 +156,7 @@ class ChunkEnv(gym.Env):
 
     def __init__(self, spec: CopySpec, start: int, count: int):
         pin_threads()  # before any GL context (created at the first render) or torch op in this process
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's: it closes the workers in order
         self.env = spec.build(start, count)
         self.observation_space, self.action_space = chunk_spaces(
             self.env.single_observation_space, self.env.single_action_space, count)
@@ -245,7 +264,7 @@ class SubprocessVecEnv(_ChunkedVecEnv):
         spaces = chunk_spaces(self.single_observation_space, self.single_action_space, self.k)
         self.timeout = timeout  # [s] for one step of every worker; None waits forever
         self.vec = AsyncVectorEnv([ChunkFactory(spec, w * self.k, self.k, spaces) for w in range(workers)],
-                                  shared_memory=True, copy=False, context=context or default_context(),
+                                  shared_memory=True, copy=False, context=worker_context(context).get_start_method(),
                                   daemon=True, autoreset_mode="Disabled")
 
     @property
