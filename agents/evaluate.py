@@ -8,6 +8,8 @@ avg steps, success %, collision %.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -52,54 +54,132 @@ def agent_from_payload(payload: dict, name: str) -> Any:
     return agent
 
 
-def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None, seed: int = 10_000,
-             task_kwargs: dict | None = None, deterministic: bool = True,
-             record_dir: str | Path | None = None, progress: str | None = None) -> dict[str, Any]:
-    """Roll out the policy for `episodes` episodes (seeds seed, seed+1, ...); returns rows and a summary.
-    With `record_dir`, every episode is also written there as an MCAP log (`mjdrive replay`/`logs`).
-    `progress`: the label of a tqdm bar over the episodes (on stderr); None: no bar."""
-    import torch
+@dataclass(frozen=True)
+class EvalSpec:
+    """Everything a worker needs to run any episode of an evaluation (picklable); episode i runs with seed
+    `seed + i`, so its result depends on its index alone."""
 
-    from mjdrive.progress import Progress
+    checkpoint: str
+    task: str
+    task_kwargs: dict[str, Any]
+    actions: str
+    seed: int
+    deterministic: bool = True
+    record_dir: str | None = None
+    torch_threads: int = 1
 
-    agent, payload = load_agent(checkpoint)
-    config = payload["config"]
-    # as in training: one thread (OpenMP threads spin-waiting beside other busy processes stalled episodes
-    # for 45 s on the 2-core machine)
-    torch.set_num_threads(int(config.get("torch_threads", 1)))
-    task = task or config["task"]
-    domain, name = split_task(task)
-    kwargs = {**config.get("task_kwargs", {}), **(task_kwargs or {})}
-    env = make_env(domain, name, actions=config.get("actions", "continuous"), **kwargs)
-    if record_dir is not None:
-        from mjdrive.record import RecordEpisodes
 
-        env = RecordEpisodes(env, record_dir)
-    rows = []
-    arms = roundabout_arms(domain, name, kwargs)  # to count the roundabout's exits from the entry
-    start = time.perf_counter()
-    for episode in Progress(range(episodes), desc=progress, unit="episode", disable=progress is None):
-        obs, info = env.reset(seed=seed + episode)
-        if not deterministic:
-            torch.manual_seed(seed + episode)  # sampled actions are reproducible per episode too
+class EpisodeRunner:
+    """A loaded policy and its env (built once), running episodes of an `EvalSpec` by index."""
+
+    def __init__(self, spec: EvalSpec, agent: Any = None):
+        import torch
+
+        # one thread, as in training (OpenMP threads spin-waiting beside other busy processes stalled episodes
+        # for 45 s on the 2-core machine); a worker process is pinned to one anyway
+        torch.set_num_threads(spec.torch_threads)
+        self.spec = spec
+        self.agent = agent if agent is not None else load_agent(spec.checkpoint)[0]
+        domain, self.name = split_task(spec.task)
+        self.env = make_env(domain, self.name, actions=spec.actions, **spec.task_kwargs)
+        self.arms = roundabout_arms(domain, self.name, spec.task_kwargs)  # to count the exits from the entry
+
+    def run(self, index: int) -> dict[str, Any]:
+        """Episode `index` (seed `spec.seed + index`) as a row; with `spec.record_dir` also its MCAP log, named
+        after the index whichever process runs it."""
+        import torch
+
+        spec, seed = self.spec, self.spec.seed + index
+        env = self.env
+        if spec.record_dir is not None:
+            from mjdrive.record import RecordEpisodes, episode_filename
+
+            env = RecordEpisodes(self.env, spec.record_dir, first_episode=index)
+            # the unfinished file of a worker that died running this episode: its rerun writes the same name
+            (Path(spec.record_dir) / (episode_filename(env.recorder.spec, seed, index) + ".part")).unlink(
+                missing_ok=True)
+        obs, info = env.reset(seed=seed)
+        if not spec.deterministic:
+            torch.manual_seed(seed)  # sampled actions are reproducible per episode too
         total, steps = 0.0, 0
         while True:
-            action = agent.act({key: value[None] for key, value in obs.items()}, deterministic)[0]
+            action = self.agent.act({key: value[None] for key, value in obs.items()}, spec.deterministic)[0]
             obs, reward, terminated, truncated, info = env.step(action)
             total += reward
             steps += 1
             if terminated or truncated:
                 break
+        if spec.record_dir is not None:
+            env.recorder.close()
         log = Path(info["record_path"]).name if "record_path" in info else None
-        rows.append(episode_row(info, episode=episode, seed=seed + episode, reward=total, steps=steps,
-                                terminated=terminated, truncated=truncated, log=log, arms=arms,
-                                control_dt=env.unwrapped.dm_env.control_timestep()))
-    env.close()
+        return episode_row(info, episode=index, seed=seed, reward=total, steps=steps, terminated=terminated,
+                           truncated=truncated, log=log, arms=self.arms,
+                           control_dt=self.env.unwrapped.dm_env.control_timestep())
+
+    def close(self) -> None:
+        self.env.close()
+
+
+_RUNNERS: dict[str, EpisodeRunner] = {}  # this process's runner of the last spec (a worker keeps it between jobs)
+
+
+def run_episode(spec: EvalSpec, index: int) -> dict[str, Any]:
+    """Episode `index` of `spec` as a row (the job `fan_out` sends to workers)."""
+    key = repr(spec)
+    if key not in _RUNNERS:
+        for runner in _RUNNERS.values():
+            runner.close()
+        _RUNNERS.clear()
+        _RUNNERS[key] = EpisodeRunner(spec)
+    return _RUNNERS[key].run(index)
+
+
+def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None, seed: int = 10_000,
+             task_kwargs: dict | None = None, deterministic: bool = True,
+             record_dir: str | Path | None = None, progress: str | None = None, workers: int = 0,
+             ray: str | None = None, on_episode: Callable[[dict], None] | None = None) -> dict[str, Any]:
+    """Roll out the policy for `episodes` episodes (seeds seed, seed+1, ...); returns rows and a summary.
+    With `record_dir`, every episode is also written there as an MCAP log (`mjdrive replay`/`logs`).
+    `progress`: the label of a tqdm bar over the episodes (on stderr); None: no bar.
+    `workers=N` runs the episodes in N worker processes, `ray` (an address, "local") as Ray tasks
+    (`mjdrive.envs.fanout`); rows, summary and logs are the same for any N and either backend (episodes of a
+    worker that died run again elsewhere). `on_episode(row)` is called as each episode ends."""
+    from mjdrive.envs.fanout import fan_out
+    from mjdrive.progress import Progress
+
+    agent, payload = load_agent(checkpoint)
+    config = payload["config"]
+    task = task or config["task"]
+    kwargs = {**config.get("task_kwargs", {}), **(task_kwargs or {})}
+    spec = EvalSpec(str(checkpoint), task, kwargs, config.get("actions", "continuous"), seed, deterministic,
+                    None if record_dir is None else str(record_dir), int(config.get("torch_threads", 1)))
+    start = time.perf_counter()
+    local = not workers and ray is None
+    if local:  # this process runs them: reuse the policy loaded above
+        _RUNNERS.clear()
+        _RUNNERS[repr(spec)] = EpisodeRunner(spec, agent)
+    bar = Progress(total=episodes, desc=progress, unit="episode", disable=progress is None)
+
+    def arrived(index: int, row: dict) -> None:
+        bar.update(1)
+        if on_episode is not None:
+            on_episode(row)
+
+    try:
+        results = fan_out(run_episode, spec, range(episodes), workers=workers, ray=ray, on_result=arrived)
+    finally:
+        bar.close()
+        if local:
+            for runner in _RUNNERS.values():
+                runner.close()
+            _RUNNERS.clear()
+    rows = [results[index] for index in range(episodes)]  # by episode, whatever the order they ended in
     trained_on = " + ".join([config["task"], *(config.get("mix_tasks") or [])])  # a mix: every task in turn
     return {"schema": SCHEMA, "command": "eval", "policy": f"{payload['algo']} {checkpoint}",
             "checkpoint": str(checkpoint), "algo": payload["algo"], "trained_on": trained_on,
             "train_steps": payload["step"], "task": task, "task_kwargs": kwargs, "episodes": episodes,
             "deterministic": deterministic, "seed": seed, "wall_s": round(time.perf_counter() - start, 1),
+            "workers": workers, "ray": ray,
             **({"ensemble": config["ensemble"]} if "ensemble" in config else {}),
             "summary": summarize(rows), "rows": rows}
 
@@ -176,7 +256,8 @@ def eval_command(args) -> int:
                                       ("*.mcap", "*.mcap.part"), "--record-dir" if args.record_dir else "logs folder"))
     result = evaluate(args.checkpoint, episodes=args.episodes, task=args.task, seed=args.seed,
                       task_kwargs=task_kwargs, deterministic=not args.stochastic, record_dir=record_dir,
-                      progress="eval")
+                      progress="eval", workers=getattr(args, "workers", 0),
+                      ray=getattr(args, "ray", None))
     if record_dir is not None:
         result["logs"] = record_dir
     markdown = to_markdown(result)

@@ -22,7 +22,7 @@ from rsl_rl.runners import OnPolicyRunner
 from rsl_rl.utils import resolve_class, resolve_obs_groups
 from tensordict import TensorDict
 
-from agents.common import CheckpointError, Run, load_module_state, make_batched_env
+from agents.common import CheckpointError, Run, load_module_state
 from mjdrive.envs.batched import ObservationLayout
 from mjdrive.envs.rsl_rl_env import RslRlVecEnv, action_scaler, to_tensordict
 
@@ -84,10 +84,19 @@ class PPOAgent:
 
 def train(config: dict, run: Run, resume_state: dict | None = None) -> None:
     """PPO iterations until `run.total_steps` env steps."""
+    from agents.train import make_training_env
+
     cfg = copy.deepcopy(config["rsl_rl"])
     cfg.setdefault("save_interval", 10**9)
-    env = RslRlVecEnv(make_batched_env(config), reward_scale=float(config.get("reward_scale", 1.0)))
-    env.seed(int(config.get("seed", 0)) + run.step)
+    env = RslRlVecEnv(make_training_env(config), reward_scale=float(config.get("reward_scale", 1.0)))
+    try:
+        _learn(env, cfg, run, resume_state, int(config.get("seed", 0)))
+    finally:
+        env.close()  # and its workers, also on Ctrl-C or an error
+
+
+def _learn(env: RslRlVecEnv, cfg: dict, run: Run, resume_state: dict | None, seed: int) -> None:
+    env.seed(seed + run.step)
     with warnings.catch_warnings(), quiet_rsl_rl():  # the duplicate-parameter warning of share_cnn_encoders,
         # fixed below
         warnings.filterwarnings("ignore", message="optimizer contains a parameter group with duplicate")
@@ -123,4 +132,3 @@ def train(config: dict, run: Run, resume_state: dict | None = None) -> None:
         if run.checkpoint_due():
             run.save("ppo", runner.alg.save())
     run.save("ppo", runner.alg.save(), periodic=False)
-    env.close()
