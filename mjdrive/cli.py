@@ -165,8 +165,8 @@ def cmd_run(args) -> int:
     from mjdrive.envs import make_env
     from mjdrive.policies import make_policy
     from mjdrive.progress import Progress, note
-    from mjdrive.record.summary import document, episode_row, roundabout_arms
-    from mjdrive.video import EpisodeVideo
+    from mjdrive.record.summary import document, end_reason, episode_row, roundabout_arms
+    from mjdrive.video import EpisodeVideo, Overlay
 
     domain, task = _split_task(args.task)
     task_kwargs = _parse_kwargs(args.task_kwarg)
@@ -187,19 +187,22 @@ def cmd_run(args) -> int:
         observation, info = env.reset(seed=seed)
         video = EpisodeVideo(env, out / f"episode_{episode:03d}.mp4") if args.video else None
         total_reward, steps = 0.0, 0
+        overlay = Overlay(info=info)
         with Progress(desc=f"episode {episode + 1}/{args.episodes} (seed {seed})", unit="step",
                       total=env.unwrapped.max_episode_steps, leave=False) as bar:
             while True:
                 if video:
-                    video.add_frame()
+                    video.add_frame(overlay)
                 observation, reward, terminated, truncated, info = env.step(policy(observation))
                 total_reward += reward
                 steps += 1
+                overlay = Overlay(steps, reward, total_reward, info)
                 bar.update()
                 if terminated or truncated:
                     break
         if video:
-            video.add_frame()
+            overlay.outcome = end_reason(info, terminated, truncated)
+            video.add_frame(overlay)
             video.close()
         log = Path(info["record_path"]).name if "record_path" in info else None
         rows.append(episode_row(info, episode=episode, seed=seed, reward=total_reward, steps=steps,

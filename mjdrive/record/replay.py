@@ -94,7 +94,7 @@ def replay(path: str | Path, video: str | Path | None = None, progress: bool = F
         data = env.dm_env.physics.data.ptr
         writer = None
         if video is not None:
-            from mjdrive.video import EpisodeVideo
+            from mjdrive.video import EpisodeVideo, Overlay
 
             writer = EpisodeVideo(env, video)
         result = ReplayResult(Path(path), len(actions), 0, episode.complete, video=Path(video) if video else None,
@@ -126,14 +126,24 @@ def replay(path: str | Path, video: str | Path | None = None, progress: bool = F
 
         compare(0, None)
         label = f"replay{' + video' if writer else ''}"
+        overlay = None if writer is None else Overlay(info=dict(env.task.info))
+        timestep = None
         for k in Progress(range(steps), desc=label, unit="step", disable=not progress):
             if writer:
-                writer.add_frame()
+                writer.add_frame(overlay)
             timestep = env.dm_env.step(actions[k])
             compare(k + 1, timestep.reward or 0.0)
             result.checked = k + 1
+            if writer:
+                overlay = Overlay(k + 1, timestep.reward or 0.0, overlay.episode_return + (timestep.reward or 0.0),
+                                  dict(env.task.info))
         if writer:
-            writer.add_frame()
+            from mjdrive.record.summary import end_reason
+
+            last = timestep is not None and timestep.last()
+            terminated = last and timestep.discount == 0.0
+            overlay.outcome = end_reason(overlay.info, terminated, last and not terminated) if last else "cut short"
+            writer.add_frame(overlay)
             writer.close()
         return result
     finally:
