@@ -7,13 +7,15 @@ export PYTHONUNBUFFERED := 1
 
 .PHONY: install system run test bench lint clean
 
-# Debian packages for off-screen GL: EGL (default) and OSMesa (fallback, MUJOCO_GL=osmesa).
+# Debian packages for off-screen GL: EGL (default) and OSMesa (fallback, MUJOCO_GL=osmesa); a virtual X
+# display and a key sender for `mjdrive drive`'s test (xvfb, xdotool).
 $(STAMP)/system:
 	@mkdir -p $(STAMP)
 	@if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
-	    libegl1 libopengl0 libgl1-mesa-dri libosmesa6 >/dev/null; \
-	else echo "not root or no apt-get: make sure libegl1 libopengl0 libgl1-mesa-dri (or libosmesa6) are installed"; fi
+	    libegl1 libopengl0 libgl1-mesa-dri libosmesa6 xvfb xdotool >/dev/null; \
+	else echo "not root or no apt-get: make sure libegl1 libopengl0 libgl1-mesa-dri (or libosmesa6), xvfb and" \
+	  "xdotool are installed"; fi
 	@touch $@
 
 # torch first and pinned, then the project. TORCH_INDEX picks the wheel index torch comes from: empty (the

@@ -1,4 +1,4 @@
-"""`mjdrive list | run | bench | replay | logs | train | eval | ensemble`: the command line."""
+"""`mjdrive list | run | drive | bench | replay | logs | train | eval | ensemble`: the command line."""
 
 from __future__ import annotations
 
@@ -218,6 +218,38 @@ def cmd_run(args) -> int:
     return 0
 
 
+def cmd_drive(args) -> int:
+    from mjdrive.drive import has_display
+    from mjdrive.envs import make_env
+    from mjdrive.progress import note
+    from mjdrive.record.summary import document
+
+    if not has_display():
+        raise ValueError("drive opens a window: set DISPLAY (or run it under `xvfb-run`)")
+    domain, task = _split_task(args.task)
+    task_kwargs = _parse_kwargs(args.task_kwarg)
+    note(f"mjdrive drive: building {args.task} ...")
+    env = make_env(domain, task, **task_kwargs)
+    out = fresh_folder(args.out, args.overwrite)
+    if args.record:
+        from mjdrive.record import RecordEpisodes
+
+        env = RecordEpisodes(env, out)
+    from mjdrive.drive import HELP, drive
+
+    note(f"mjdrive drive: {HELP}")
+    start = time.perf_counter()
+    try:
+        rows = drive(env, episodes=args.episodes, seed=args.seed, task_name=args.task, realtime=args.realtime,
+                     on_episode=lambda row: print(json.dumps(row), flush=True))
+    finally:
+        env.close()
+    summary = document("drive", args.task, task_kwargs, "keyboard", rows, wall_s=round(time.perf_counter() - start, 1))
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    print(f"wrote {out}/ ({'MCAP logs, ' if args.record else ''}summary.json)")
+    return 0
+
+
 def cmd_replay(args) -> int:
     from mjdrive.progress import note
     from mjdrive.record.replay import replay
@@ -313,6 +345,20 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--record-image-format", default="jpeg", choices=("jpeg", "png"),
                      help="compression of the logged camera images")
     run.set_defaults(func=cmd_run)
+
+    drive = sub.add_parser("drive", help="drive a task by keyboard in MuJoCo's viewer; log each episode as MCAP")
+    drive.add_argument("--task", default="roundabout/d120", type=task_name, help="DOMAIN/TASK (see `mjdrive list`)")
+    drive.add_argument("--task-kwarg", action="append", default=[], metavar="KEY=VALUE",
+                       help="task keyword argument, e.g. vehicle=suv (repeatable)")
+    drive.add_argument("--episodes", type=int_at_least(0), default=0, help="episodes to drive (0: until the "
+                       "window is closed)")
+    drive.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=0, help="seed of the first episode")
+    drive.add_argument("--realtime", type=positive_float, default=1.0, help="simulated seconds per wall second")
+    drive.add_argument("--out", default="runs/drive", help="output folder (one run: it must be new or empty)")
+    drive.add_argument("--overwrite", action="store_true", help="replace the run already in OUT")
+    drive.add_argument("--record", action=argparse.BooleanOptionalAction, default=True,
+                       help="write an MCAP log per episode into OUT")
+    drive.set_defaults(func=cmd_drive)
 
     replay = sub.add_parser("replay", help="re-simulate a logged episode and check it matches bit for bit")
     replay.add_argument("file", type=existing_file, help="an episode's .mcap file")
