@@ -77,18 +77,41 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--task-kwarg", action="append", default=[], metavar="KEY=VALUE",
                         help="task keyword argument over the checkpoint's, e.g. collision_penalty=100 to score an "
                              "agent trained with another penalty under eq. 12 (repeatable)")
+    parser.add_argument("--workers", type=int, default=0, metavar="N",
+                        help="run each density's episodes in N worker processes (same table at any N)")
+    parser.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
+                        help="run the episodes as Ray tasks: a local Ray of --workers CPUs (no ADDRESS), 'auto' "
+                             "(the cluster of `ray start` on this machine) or HOST:PORT")
     parser.add_argument("--out", default=None, help="write OUT.md and OUT.json")
     args = parser.parse_args(argv)
     task_kwargs = parse_task_kwargs(args.task_kwarg)
     for spec in args.agent:
         if len(spec) not in (2, 3):
             parser.error(f"--agent takes NAME CHECKPOINT [EPISODES_CSV], got {spec}")
+    if args.workers < 0:
+        parser.error(f"--workers must be >= 0, got {args.workers}")
+    owns_ray = False
+    if args.ray is not None:  # one Ray session for every agent and density
+        from mjdrive.envs.vector import ray_connect
+
+        owns_ray = ray_connect(args.ray, num_cpus=args.workers or None)
+    try:
+        return _tables(args, task_kwargs, argv)
+    finally:
+        if owns_ray:
+            import ray
+
+            ray.shutdown()
+
+
+def _tables(args: argparse.Namespace, task_kwargs: dict, argv: list[str] | None) -> int:
     start = time.perf_counter()
     results, rows, training = {}, [], []
     for name, checkpoint, *csv_path in args.agent:
         for level in args.levels:
             result = evaluate(checkpoint, episodes=args.episodes, task=f"roundabout/{level}", seed=args.seed,
-                              task_kwargs=task_kwargs, deterministic=not args.stochastic, progress=f"{name} {level}")
+                              task_kwargs=task_kwargs, deterministic=not args.stochastic, progress=f"{name} {level}",
+                              workers=args.workers, ray=args.ray)
             results.setdefault(name, {})[level] = result
             s = result["summary"]
             rows.append(f"| {name} | {level} | {s['avg_reward']:.2f} | {s['avg_time_s']:.2f} | "

@@ -33,6 +33,7 @@ import multiprocessing
 import os
 import signal
 import sys
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -44,6 +45,7 @@ import numpy as np
 WORKER_THREAD_VARS = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
                       "LP_NUM_THREADS": "1"}
 REWARD_DTYPE = np.float32  # as BatchedEnv's (AsyncVectorEnv hands float64 on; float32 values survive exactly)
+DEATH_REPORT_WAIT = 2.0  # [s] to learn which worker died, for the error message
 RAY_MISSING = "the Ray backend needs Ray: pip install 'mjdrive[ray]'"
 
 
@@ -291,16 +293,28 @@ class SubprocessVecEnv(_ChunkedVecEnv):
         return self._merge(obs, reward, terminated, truncated, list(info["chunk"]))
 
     def _died(self, error: Exception):
+        deadline = time.monotonic() + DEATH_REPORT_WAIT
+        while all(p.is_alive() for p in self.vec.processes) and time.monotonic() < deadline:
+            time.sleep(0.05)  # the pipe broke a moment before the process is known to be gone
         dead = [f"worker {w} (pid {p.pid}, exit code {p.exitcode})" for w, p in enumerate(self.vec.processes)
                 if not p.is_alive()]
-        self.close()
+        self.close(terminate=True)
         raise WorkerDied(f"{', '.join(dead) or 'a worker'} died ({type(error).__name__}); the vector env is "
                          "closed") from error
 
-    def close(self) -> None:
-        if not self.vec.closed:
-            alive = all(p.is_alive() for p in self.vec.processes)
-            self.vec.close(terminate=not alive)  # a dead worker cannot answer "close": terminate the rest
+    def close(self, terminate: bool = False) -> None:
+        """Close the workers (each closes its copies and finishes their open logs); `terminate`: stop them now."""
+        if self.vec.closed:
+            return
+        if not terminate and all(p.is_alive() for p in self.vec.processes):
+            self.vec.close()
+            return
+        # AsyncVectorEnv would first wait for a pending step's answers, and a dead worker's pipe raises EOFError
+        # there: drop the pending call, then terminate
+        from gymnasium.vector.async_vector_env import AsyncState
+
+        self.vec._state = AsyncState.DEFAULT
+        self.vec.close(terminate=True)
 
 
 class _ChunkWorker:
@@ -388,6 +402,8 @@ class RayVecEnv(_ChunkedVecEnv):
         if self._closed:
             return
         self._closed = True
+        closing = [actor.close.remote() for actor in self.actors]  # finish the copies' open logs
+        self._ray.wait(closing, num_returns=len(closing), timeout=30)
         for actor in self.actors:
             self._ray.kill(actor)
         if self._owns_ray:

@@ -1,0 +1,260 @@
+"""Scale-out: the vector env's backends (in process, worker processes, Ray actors) step the same episodes, an
+evaluation gives the same rows and MCAP logs at 1, 2 and 4 workers and on Ray, a killed worker's episodes run
+again elsewhere, Ctrl-C leaves no process behind, and training with workers learns from the same episodes."""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agents.common import apply_overrides, load_config
+from agents.evaluate import evaluate
+from agents.train import train
+from mjdrive.envs.vector import RayVecEnv, SubprocessVecEnv, WorkerDied, make_vec_env
+from mjdrive.record import proto
+from mjdrive.record.reader import read_episode
+
+ROOT = Path(__file__).resolve().parents[1]
+CHECKPOINT = ROOT / "results" / "checkpoints" / "sac_features_roundabout.pt"  # features, traffic, pedal actions
+SHORT = {"time_limit": 4.0}  # [s]: 20 control steps, so episodes end and auto-reset within a few dozen steps
+VOLATILE_METADATA = ("start_time_ns", "pid", "host")  # wall clock and process of the writer
+
+
+@pytest.fixture(scope="module")
+def ray_session():
+    """One local Ray of 2 CPUs for the module (the backends join it and leave it running)."""
+    import ray  # `make test` installs the ray extra for this test
+
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
+             runtime_env={"env_vars": {"MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}})
+    yield "local"
+    ray.shutdown()
+
+
+def _descendants() -> set[int]:
+    """Pids of every process below this one (workers of a forkserver are its children, not ours)."""
+    parents: dict[int, int] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        parents[int(stat.parent.name)] = int(fields[1])
+    found, frontier = set(), {os.getpid()}
+    while frontier:
+        frontier = {pid for pid, parent in parents.items() if parent in frontier} - found
+        found |= frontier
+    return found
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return "forkserver import main (exited)"
+
+
+def _episode_contents(path: Path) -> dict:
+    """An MCAP episode's metadata and messages with the wall-clock parts taken out (log times, protobuf
+    timestamps, the writer's pid and host)."""
+    episode = read_episode(path)
+    assert episode.complete, path
+    topics = {}
+    for topic in sorted(episode.topics):
+        name, encoding, data = episode.schemas[topic]
+        if encoding == "protobuf":
+            messages = []
+            for _, payload in episode.messages[topic]:
+                message = proto.decode(name, data, payload)
+                _clear_timestamps(message)
+                messages.append(message.SerializeToString(deterministic=True))
+        else:
+            messages = [payload for _, payload in episode.messages[topic]]
+        topics[topic] = messages
+    metadata = {k: v for k, v in episode.metadata.items() if k not in VOLATILE_METADATA}
+    return {"metadata": metadata, "summary": episode.summary, "topics": topics}
+
+
+def _clear_timestamps(message) -> None:
+    for field, value in message.ListFields():
+        if field.name == "timestamp":
+            message.ClearField(field.name)
+        elif field.message_type is not None:
+            for item in ([value] if hasattr(value, "ListFields") else value):  # a message or a repeated one
+                _clear_timestamps(item)
+
+
+def _logs(folder: Path) -> dict[str, dict]:
+    files = sorted(folder.rglob("*.mcap"))
+    assert files and not list(folder.rglob("*.part")), folder
+    return {str(path.relative_to(folder)): _episode_contents(path) for path in files}
+
+
+def _assert_same(a, b, path: str = "") -> None:
+    """Equal values, dtypes and keys, recursively (numpy arrays bit for bit)."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and list(a) == list(b), path
+        for key in a:
+            _assert_same(a[key], b[key], f"{path}.{key}")
+    elif isinstance(a, (list, tuple)):
+        assert len(a) == len(b), path
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            _assert_same(x, y, f"{path}[{i}]")
+    elif isinstance(a, np.ndarray):
+        assert isinstance(b, np.ndarray) and a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), path
+    else:
+        assert type(a) is type(b) and (a == b or (a != a and b != b)), f"{path}: {a!r} != {b!r}"
+
+
+def _rollout(env, steps: int = 45) -> list:
+    """Reset with seed 3 and step with seeded random pedal actions; everything the learners read."""
+    rng = np.random.default_rng(0)
+    out = [env.reset(seed=3)[0]]
+    space = env.single_action_space
+    for _ in range(steps):
+        actions = rng.uniform(space.low, space.high, (env.num_envs, *space.shape)).astype(space.dtype)
+        obs, reward, terminated, truncated, info = env.step(actions)
+        out.append([obs, reward, terminated, truncated, info["final_observation"], info["final_info"]])
+    env.close()
+    return out
+
+
+def test_vector_backends_step_bit_identical_episodes(tmp_path, ray_session):
+    """4 copies of two densities, in process, over 1 and 2 processes and 2 Ray actors: the same observations,
+    rewards, flags, final observations and infos at every step, and the same training logs (copy i in env_i/)."""
+    def env(name: str, **backend):
+        return make_vec_env("roundabout", ["d120", "d160"], num_envs=4, actions="pedal", record_dir=tmp_path / name,
+                            observation="features", **SHORT, **backend)
+
+    reference = _rollout(env("inproc"))
+    ended = sum(f is not None for step in reference[1:] for f in step[5])
+    assert ended >= 8, "episodes must end (and auto-reset) during the rollout"
+    tasks = {(i, f["task"]) for step in reference[1:] for i, f in enumerate(step[5]) if f}
+    assert tasks == {(0, "roundabout/d120"), (1, "roundabout/d160"), (2, "roundabout/d120"), (3, "roundabout/d160")}
+    reference_logs = _logs(tmp_path / "inproc")
+    for name, backend in (("w1", {"workers": 1}), ("w2", {"workers": 2}), ("ray", {"workers": 2, "ray": ray_session})):
+        _assert_same(reference, _rollout(env(name, **backend)), name)
+        _assert_same(reference_logs, _logs(tmp_path / name), f"{name} logs")
+
+
+def test_evaluation_rows_and_logs_are_the_same_at_1_2_4_workers_on_ray_and_after_a_worker_is_killed(
+        tmp_path, ray_session, capfd):
+    def run(name: str, **backend) -> tuple[list[dict], dict]:
+        result = evaluate(CHECKPOINT, episodes=5, seed=500, task_kwargs=SHORT, record_dir=tmp_path / name, **backend)
+        return result["rows"], result["summary"]
+
+    rows, summary = run("inproc")
+    assert [row["episode"] for row in rows] == list(range(5))
+    logs = _logs(tmp_path / "inproc")
+    assert sorted(logs) == sorted(f"roundabout-d210_{500 + i}_{i:05d}.mcap" for i in range(5))
+    killed: list[int] = []
+
+    def kill_a_worker(row: dict) -> None:  # kill -9 a busy worker as the first episode comes back
+        if not killed:
+            worker = multiprocessing.active_children()[0]
+            os.kill(worker.pid, signal.SIGKILL)
+            killed.append(worker.pid)
+
+    for name, backend in (("w1", {"workers": 1}), ("w2", {"workers": 2}), ("w4", {"workers": 4}),
+                          ("ray", {"workers": 2, "ray": ray_session}),
+                          ("w2_killed", {"workers": 2, "on_episode": kill_a_worker})):
+        before = _descendants()  # (Ray keeps its idle workers)
+        got_rows, got_summary = run(name, **backend)
+        assert got_rows == rows, name
+        assert got_summary == summary, name
+        _assert_same(logs, _logs(tmp_path / name), f"{name} logs")
+    assert killed and "a worker process died" in capfd.readouterr().err
+    assert not multiprocessing.active_children()  # every pool's workers joined
+    left = [_cmdline(pid) for pid in _descendants() - before]
+    # no worker left behind; multiprocessing's forkserver and resource tracker serve later pools
+    assert all("forkserver import main" in line or "resource_tracker import main" in line for line in left), left
+
+
+def test_a_killed_vector_env_worker_is_reported_and_the_others_stop():
+    env = make_vec_env("waypoints", "straight", num_envs=2, workers=2, observation="features")
+    assert isinstance(env, SubprocessVecEnv)
+    env.reset(seed=0)
+    os.kill(env.pids[0], signal.SIGKILL)
+    with pytest.raises(WorkerDied, match="worker 0"):
+        for _ in range(3):
+            env.step(np.zeros((2, 3), np.float32))
+    time.sleep(0.5)
+    assert not any(process.is_alive() for process in env.vec.processes)
+
+
+def test_ctrl_c_stops_a_parallel_evaluation_and_every_worker(tmp_path):
+    command = [sys.executable, "-m", "mjdrive.cli", "eval", "--checkpoint", str(CHECKPOINT), "--episodes", "200",
+               "--workers", "2", "--no-record"]
+    proc = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            start_new_session=True)  # its own process group, as a terminal's foreground job
+
+    def group() -> list[int]:
+        pids = []
+        for stat in Path("/proc").glob("[0-9]*/stat"):
+            try:
+                fields = stat.read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[2]) == proc.pid and fields[0] != "Z":  # process group id; zombies are gone already
+                pids.append(int(stat.parent.name))
+        return pids
+
+    deadline = time.monotonic() + 60
+    while len(group()) < 4 and time.monotonic() < deadline:  # the CLI, the forkserver and two workers
+        time.sleep(0.2)
+    assert len(group()) >= 4, "the workers did not start"
+    time.sleep(1.0)  # episodes under way
+    os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C: the terminal signals the whole foreground group
+    assert proc.wait(timeout=30) == 130, proc.stderr.read().decode()[-2000:]
+    deadline = time.monotonic() + 10
+    while group() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert group() == []
+
+
+def test_training_with_workers_learns_from_the_same_episodes(tmp_path):
+    """SAC over 2 worker processes writes the same episode log and networks as in process."""
+    import torch
+
+    from agents.common import load_checkpoint
+
+    config = apply_overrides(load_config("sac"), [
+        "steps=192", "num_envs=2", "tensorboard=false", "checkpoint_every=1000", "log_every=1000",
+        "algorithm.learning_starts=64", "algorithm.batch_size=16", "algorithm.updates_per_step=0.5",
+        "task_kwargs.time_limit=3.0"])
+    policies = {}
+    for name, workers in (("inproc", 0), ("w2", 2)):
+        policies[name] = train({**config, "workers": workers}, tmp_path / name, progress=False)
+    columns = ("episode", "env_step", "return", "length", "end", "task")
+
+    def episodes(name: str) -> list[tuple]:
+        lines = (tmp_path / name / "episodes.csv").read_text().splitlines()
+        header = lines[0].split(",")
+        keep = [header.index(c) for c in columns if c in header]
+        return [tuple(line.split(",")[i] for i in keep) for line in lines[1:]]
+
+    assert len(episodes("inproc")) >= 4
+    assert episodes("w2") == episodes("inproc")
+    a, b = (load_checkpoint(policies[name])["state"]["actor"] for name in ("inproc", "w2"))
+    assert all(torch.equal(a[key], b[key]) for key in a)
+
+
+def test_ray_backend_without_ray_installed_says_how_to_get_it(monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` raises ImportError
+    with pytest.raises(ImportError, match=r"pip install 'mjdrive\[ray\]'"):
+        make_vec_env("waypoints", "straight", num_envs=2, workers=2, ray="local", observation="features")
+    assert RayVecEnv is not None
+
+
+def test_copies_that_do_not_split_evenly_over_the_workers_are_refused():
+    with pytest.raises(ValueError, match="multiple of the workers"):
+        make_vec_env("waypoints", "straight", num_envs=3, workers=2, observation="features")
+
