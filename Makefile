@@ -21,10 +21,11 @@ $(STAMP)/system:
 # torch first and pinned, then the project. TORCH_INDEX picks the wheel index torch comes from: empty (the
 # default) uses pip's own configuration, which resolves to CUDA builds (GBs) where no local CPU wheel exists;
 # `make run TORCH_INDEX=https://download.pytorch.org/whl/cpu` gets PyTorch's CPU-only build anywhere.
+# The ray extra too: the test suite runs the Ray backends on a local Ray (tests/test_parallel.py).
 TORCH_INDEX ?=
 $(STAMP)/python: pyproject.toml $(STAMP)/system
 	$(PIP) install -q torch==2.13.0 $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX))
-	$(PIP) install -q -e ".[learn,dev]"
+	$(PIP) install -q -e ".[learn,dev,ray]"
 	@touch $@
 
 install: $(STAMP)/python
