@@ -132,6 +132,35 @@ def fresh_folder(path: str | Path, overwrite: bool, patterns: tuple[str, ...] = 
     return folder
 
 
+def add_live_arguments(parser: argparse.ArgumentParser) -> None:
+    """--live, --live-port, --live-host: stream the log's channels to the Foxglove app while it runs."""
+    parser.add_argument("--live", action="store_true",
+                        help="also stream the MCAP log's channels to Foxglove (Open connection > Foxglove "
+                             "WebSocket, ws://HOST:PORT) while the episodes run")
+    parser.add_argument("--live-port", type=int_at_least(0, 65535), default=8765, help="port of the live stream "
+                        "(0: any free port)")
+    parser.add_argument("--live-host", default="127.0.0.1", help="address the live stream binds (0.0.0.0: "
+                        "reachable from other machines)")
+
+
+def record_options(args, **options):
+    """RecordOptions of a command's arguments (its live stream included); announces the live URL."""
+    from mjdrive.record import RecordOptions
+
+    if args.live:
+        options.update(live_port=args.live_port, live_host=args.live_host)
+    return RecordOptions(**options)
+
+
+def announce_live(env) -> None:
+    url = getattr(getattr(env, "recorder", None), "live_url", None)
+    if url:
+        from mjdrive.progress import note
+        from mjdrive.record import LAYOUT
+
+        note(f"live: {url} (Foxglove: Open connection > Foxglove WebSocket; layout {LAYOUT})")
+
+
 def cmd_list(args) -> int:
     from mjdrive import suite
     from mjdrive.envs import GYM_IDS
@@ -170,15 +199,18 @@ def cmd_run(args) -> int:
 
     domain, task = _split_task(args.task)
     task_kwargs = _parse_kwargs(args.task_kwarg)
+    if args.live and not args.record:
+        raise ValueError("--live streams the channels of the episode logs: drop --no-record")
     note(f"mjdrive run: building {args.task} ...")
     env = make_env(domain, task, **task_kwargs)  # bad keywords are reported before the folder is looked at
     out = fresh_folder(args.out, args.overwrite)
     policy = make_policy(args.policy, env, args.seed)
     if args.record:  # one MCAP file per episode in OUT (see mjdrive/record/recorder.py)
-        from mjdrive.record import RecordEpisodes, RecordOptions
+        from mjdrive.record import RecordEpisodes
 
-        env = RecordEpisodes(env, out, RecordOptions(camera_every=args.record_camera_every,
-                                                     image_format=args.record_image_format))
+        env = RecordEpisodes(env, out, record_options(args, camera_every=args.record_camera_every,
+                                                      image_format=args.record_image_format))
+        announce_live(env)
     rows = []
     arms = roundabout_arms(domain, task, task_kwargs)  # to count the roundabout's exits from the entry
     run_start = time.perf_counter()
@@ -228,13 +260,16 @@ def cmd_drive(args) -> int:
         raise ValueError("drive opens a window: set DISPLAY (or run it under `xvfb-run`)")
     domain, task = _split_task(args.task)
     task_kwargs = _parse_kwargs(args.task_kwarg)
+    if args.live and not args.record:
+        raise ValueError("--live streams the channels of the episode logs: drop --no-record")
     note(f"mjdrive drive: building {args.task} ...")
     env = make_env(domain, task, **task_kwargs)
     out = fresh_folder(args.out, args.overwrite)
     if args.record:
         from mjdrive.record import RecordEpisodes
 
-        env = RecordEpisodes(env, out)
+        env = RecordEpisodes(env, out, record_options(args))
+        announce_live(env)
     from mjdrive.drive import HELP, drive
 
     note(f"mjdrive drive: {HELP}")
@@ -344,6 +379,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="log the front camera every K-th step (0: no images)")
     run.add_argument("--record-image-format", default="jpeg", choices=("jpeg", "png"),
                      help="compression of the logged camera images")
+    add_live_arguments(run)
     run.set_defaults(func=cmd_run)
 
     drive = sub.add_parser("drive", help="drive a task by keyboard in MuJoCo's viewer; log each episode as MCAP")
@@ -358,6 +394,7 @@ def build_parser() -> argparse.ArgumentParser:
     drive.add_argument("--overwrite", action="store_true", help="replace the run already in OUT")
     drive.add_argument("--record", action=argparse.BooleanOptionalAction, default=True,
                        help="write an MCAP log per episode into OUT")
+    add_live_arguments(drive)
     drive.set_defaults(func=cmd_drive)
 
     replay = sub.add_parser("replay", help="re-simulate a logged episode and check it matches bit for bit")

@@ -150,22 +150,27 @@ def _fmt(value: Any, digits: int = 2) -> str:
     return str(value)
 
 
-def logs_rows(folder: str | Path) -> tuple[list[dict], list[str], list[str]]:
-    """(schema rows of the complete episodes in `folder`, their task names, one line per damaged or
-    unreadable file). Rows follow `mjdrive.record.summary.ROW_FIELDS`, as run's and eval's do."""
+def logs_rows(folder: str | Path) -> tuple[list[dict], list[str], list[str], list[str]]:
+    """(schema rows of the complete episodes in `folder`, their task names, one table row per damaged or
+    unreadable file, one line per problem). Rows follow `mjdrive.record.summary.ROW_FIELDS`, as run's and
+    eval's do."""
     from mjdrive.record.summary import episode_row, roundabout_arms
 
     rows: list[dict] = []
     tasks: list[str] = []
     problems: list[str] = []
+    damaged: list[str] = []
     for path in episode_files(folder):
         try:
-            episode = read_episode(path, topics=set())
+            episode = read_episode(path, topics={"/action", "/physics"})
         except EpisodeFileError as error:
+            damaged.append(f"| {path.name} | - | - | - | - | - | - | - | - | - | unreadable |")
             problems.append(str(error))
             continue
         meta, summary = episode.metadata, episode.summary
         if summary is None:
+            damaged.append(f"| {path.name} | {meta.get('task')} | {_fmt(meta.get('seed'))} | {episode.readable_steps} "
+                           "| - | - | - | - | - | - | incomplete |")
             problems.append(episode.describe_damage())
             continue
         steps = int(summary.get("steps", 0))
@@ -176,14 +181,14 @@ def logs_rows(folder: str | Path) -> tuple[list[dict], list[str], list[str]]:
                                 interrupted=bool(summary.get("interrupted")), arms=arms, log=path.name,
                                 control_dt=float(summary.get("sim_time", 0.0)) / max(steps, 1)))
         tasks.append(summary.get("task", meta.get("task")))
-    return rows, tasks, problems
+    return rows, tasks, damaged, problems
 
 
 def logs_document(folder: str | Path) -> dict[str, Any]:
     """`mjdrive logs --out FILE.json`: the folder's episodes in the summary schema of run and eval."""
     from mjdrive.record.summary import document
 
-    rows, tasks, problems = logs_rows(folder)
+    rows, tasks, _, problems = logs_rows(folder)
     return document("logs", " + ".join(dict.fromkeys(tasks)), {}, "-", rows, folder=str(folder),
                     problems=problems)
 
@@ -193,7 +198,7 @@ def logs_table(folder: str | Path) -> str:
     run and eval), their means, and the damaged files."""
     from mjdrive.record.summary import summarize
 
-    rows, tasks, problems = logs_rows(folder)
+    rows, tasks, damaged, problems = logs_rows(folder)
     lines = [
         f"# Episodes in {folder}", "",
         "| file | task | seed | steps | reward | success | collision | time [s] | mean speed [m/s] | exit | end |",
@@ -203,6 +208,7 @@ def logs_table(folder: str | Path) -> str:
         lines.append(f"| {row['log']} | {task} | {_fmt(row['seed'])} | {row['steps']} | {_fmt(row['reward'], 1)} "
                      f"| {_fmt(row['success'])} | {_fmt(row['collision'])} | {_fmt(row['time_s'], 1)} "
                      f"| {_fmt(row['speed_m_s'])} | {_fmt(row['exit'])} | {row['end']} |")
+    lines += damaged
     if rows:
         s = summarize(rows)
         lines.append(f"| **all {len(rows)} complete** | | | {sum(r['steps'] for r in rows)} "

@@ -30,6 +30,10 @@ hold steps + 1 messages; /action and /reward hold one per step. MCAP metadata "m
 holds what replay needs: task, task and environment kwargs (the task kwargs always name the physics step,
 `physics_dt` [s]), seed, the task's RNG state at reset, package versions; metadata "summary" (written last)
 repeats /episode. Metadata values are JSON strings.
+
+Live: with `RecordOptions(live_port=...)` the recorder also serves its channels on a Foxglove WebSocket
+server (foxglove-sdk, bound to `live_host`, 127.0.0.1 by default) while it writes the files; a client that
+subscribes to a scene topic mid-episode gets the static scene again at the next step.
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ import json
 import math
 import os
 import platform
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -83,6 +88,8 @@ class RecordOptions:
     jpeg_quality: int = 85
     chunk_size: int = 256 * 1024  # [bytes] uncompressed MCAP chunk: the most a killed process can lose
     compression: str | None = "zstd"  # "zstd", "lz4" or None
+    live_port: int | None = None  # also stream every channel to Foxglove's WebSocket on this port (0: any free)
+    live_host: str = "127.0.0.1"  # the address the live server binds (0.0.0.0: reachable from other machines)
 
     def __post_init__(self):
         if self.image_format not in ("jpeg", "png"):
@@ -91,6 +98,8 @@ class RecordOptions:
             raise ValueError(f"compression must be 'zstd', 'lz4' or None, got {self.compression!r}")
         if self.camera_every < 0:
             raise ValueError(f"camera_every must be >= 0, got {self.camera_every}")
+        if self.live_port is not None and not 0 <= self.live_port <= 65535:
+            raise ValueError(f"live_port must be in 0..65535, got {self.live_port}")
 
 
 def episode_filename(spec: EnvSpec, seed: int | None, episode: int, suffix: int = 0) -> str:
@@ -191,6 +200,20 @@ class _Channels:
         self.episode = raw("/episode", _SUMMARY)
 
 
+STATIC_TOPICS = ("/scene/road", "/scene/route", "/scene/ego")  # logged once per episode
+
+
+class _ResendSceneOnSubscribe(foxglove.ServerListener):
+    """A live client that subscribes to a scene topic mid-episode gets the scene again at the next step."""
+
+    def __init__(self, due: threading.Event):
+        self.due = due
+
+    def on_subscribe(self, client, channel) -> None:
+        if channel.topic in STATIC_TOPICS:
+            self.due.set()
+
+
 def _ns(seconds: float) -> int:
     return int(round(seconds * 1e9))
 
@@ -231,6 +254,17 @@ class EpisodeRecorder:
         compression = {"zstd": MCAPCompression.Zstd, "lz4": MCAPCompression.Lz4, None: None}[self.options.compression]
         self._write_options = MCAPWriteOptions(compression=compression, chunk_size=self.options.chunk_size,
                                                profile="", compression_threads=0)
+        self.server = None  # Foxglove WebSocket server streaming this recorder's channels (options.live_port)
+        self._scene_due = threading.Event()
+        if self.options.live_port is not None:
+            self.server = foxglove.start_server(
+                name=f"mjdrive {spec.name}", host=self.options.live_host, port=self.options.live_port,
+                context=self._context, server_listener=_ResendSceneOnSubscribe(self._scene_due))
+
+    @property
+    def live_url(self) -> str | None:
+        """ws://HOST:PORT of the live stream (Foxglove: Open connection > Foxglove WebSocket), or None."""
+        return None if self.server is None else f"ws://{self.options.live_host}:{self.server.port}"
 
     @staticmethod
     def _kwargs_json(kwargs: dict | None) -> tuple[str, bool]:
@@ -318,14 +352,19 @@ class EpisodeRecorder:
         metadata["environment_kwargs"] = self._environment_kwargs_json
         self._writer.write_metadata("mjdrive", metadata)
         ns = self._t0 + _ns(data.time)
+        self._scene_due.clear()
+        self._log_scene(task, ns)
+        self._log_state(task, data, c, None, ns)
+        return self._part
+
+    def _log_scene(self, task, ns: int) -> None:
+        """The static scene: road, route, ego box (at begin, and again when a live client subscribes)."""
         self._channels.road.log(self._road_bytes(task.road_map), ns)
         stamp = _timestamp(ns)
         self._channels.route.log(fm.SceneUpdate(entities=scene.route_entities(task, stamp)), log_time=ns)
         p = task.params
         ego = scene.ego_entity(p.length, p.width, p.height, stamp)
         self._channels.ego.log(fm.SceneUpdate(entities=[ego]), log_time=ns)
-        self._log_state(task, data, c, None, ns)
-        return self._part
 
     def step(self, task, physics, action, reward: float, *, terminated: bool = False,
              truncated: bool = False) -> Path | None:
@@ -345,6 +384,9 @@ class EpisodeRecorder:
         ch.action.log(json.dumps({"throttle": a0, "steer": a1, "brake": a2}).encode(), action_ns)
         terms = {k: float(v) for k, v in task.reward_terms.items()}
         ch.reward.log(json.dumps({"reward": reward, "return": self._return, "terms": terms}).encode(), ns)
+        if self._scene_due.is_set():  # a live client subscribed to the scene since the last step
+            self._scene_due.clear()
+            self._log_scene(task, ns)
         self._log_state(task, data, c, (a0, a1, a2), ns)
         if terminated or truncated:
             return self.end(terminated=terminated, truncated=truncated, task=task)
@@ -379,6 +421,9 @@ class EpisodeRecorder:
         """End an open episode (interrupted) and free the camera renderer."""
         self.end(interrupted=True)
         self._close_renderer()
+        if self.server is not None:
+            self.server.stop()
+            self.server = None
 
     def _close_renderer(self) -> None:
         if self._renderer is not None:
