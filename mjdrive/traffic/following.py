@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from mjdrive.traffic.conflicts import conflict_columns, courteous_agents
 from mjdrive.traffic.merges import merge_conflicts
 from mjdrive.traffic.pedestrians import occupied_crossings
 
@@ -21,7 +22,8 @@ def follower_table(t: Traffic, ctx: dict) -> dict:
     return {"rows": np.arange(nv), "path": ctx["path"][:nv], "offset": ctx["offset"][:nv], "s": t.s,
             "v": t.v, "v0": t.v0, "length": t.length, "width": t.width, "a": t.a_max,
             "b": t.b_comf, "T": t.headway, "xy": t._current_pos[vs, :2],
-            "yaw": t._current_yaw[vs], "accept_gap": t.config.accept_gap}
+            "yaw": t._current_yaw[vs], "accept_gap": t.config.accept_gap,
+            "courteous": courteous_agents(t, ctx)[:nv]}
 
 
 def accelerations(t: Traffic, f: dict, ctx: dict) -> np.ndarray:
@@ -36,7 +38,8 @@ def accelerations(t: Traffic, f: dict, ctx: dict) -> np.ndarray:
     front = s + length / 2
     xy_o, yaw_o, v_o, hl_o, hw_o, idx_o = obstacles(t)
     lane_a = ctx["lane"]
-    n_a, n_o, n_k, n_y = len(lane_a), len(xy_o), len(m.cross_lane), len(m.yield_lane)
+    n_y = len(m.yield_lane) if t.approaches is None else 0  # urban rules: conflict zones instead
+    n_a, n_o, n_k = len(lane_a), len(xy_o), len(m.cross_lane)
     c1, c2, c3, c4 = n_a, n_a + n_o, n_a + n_o + n_k, n_a + n_o + n_k + n_y
     gap = np.full((len(s), c4 + n_y), np.inf)
     lead = np.zeros_like(gap)
@@ -98,6 +101,14 @@ def accelerations(t: Traffic, f: dict, ctx: dict) -> np.ndarray:
             keep_out = committed[None] & ~through & (to_merge > 0) & (stop > -0.5)
             gap[:, c4:] = np.where(keep_out, stop, np.inf)
 
+    # 5. Urban rules: stop lines of conflict zones not to be entered now, and gaps opened at merges.
+    to_give_way = np.full(len(s), np.inf)  # [m] to the nearest give-way line of a conflict zone
+    if t.approaches is not None and len(t.approaches):
+        extra_gap, extra_lead, extra_s0, to_give_way = conflict_columns(t, ctx, f)
+        gap = np.concatenate([gap, extra_gap], axis=1)
+        lead = np.concatenate([lead, extra_lead], axis=1)
+        s0 = np.concatenate([s0, extra_s0])
+
     finite = gap < np.inf
     t.lead_gap = gap.min(axis=1) if len(rows) == t.nv else t.lead_gap
     s_star = s0[None] + np.maximum(0.0, (v * f["T"])[:, None] + v[:, None] * (v[:, None] - lead)
@@ -115,6 +126,8 @@ def accelerations(t: Traffic, f: dict, ctx: dict) -> np.ndarray:
         ahead_line = (to_line > -0.5) & (to_line < np.inf)
         v0 = np.where(ahead_line, np.minimum(v0, np.sqrt(cfg.yield_speed**2 + 2 * 1.5 * np.maximum(to_line, 0))),
                       v0)
+    slow = to_give_way < np.inf  # approach give-way lines slowly enough to stop at them
+    v0 = np.where(slow, np.minimum(v0, np.sqrt(cfg.yield_speed**2 + 2 * 1.5 * np.maximum(to_give_way, 0))), v0)
     acc = f["a"] * (1.0 - (v / np.maximum(v0, 0.1)) ** 4 - interaction)
     tau = cfg.decision_period
     acc = np.where(v <= v0, np.minimum(acc, (v0 - v) / tau), acc)  # no overshoot of v0 in one period

@@ -7,14 +7,19 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mjdrive.traffic.geometry import smoothstep
+from mjdrive.traffic.intentions import KEEP, LANE_CHANGE, LEFT, RIGHT
+
+EGO_IDM = (2.0, 3.0, 1.5)  # [m/s^2, m/s^2, s] a, b, T assumed for the ego as a follower
 
 if TYPE_CHECKING:
     from mjdrive.traffic.model import Traffic
 
 
 def lane_changes(t: Traffic) -> None:
-    """At most one lane change per decision: each vehicle beside a neighbour lane tries at the rates of
-    `lane_change_rate` (one random try per decision); the change happens if the target lane has room."""
+    """At most one lane change per decision, into a same-direction neighbour lane that has room: at random
+    rates (`lane_changes="random"`) or, under urban rules (`"intention"`), by each vehicle's lane-change
+    intention after `signal_time` of signalling, if the new follower need not brake harder than
+    `safe_decel` (MOBIL's safety criterion)."""
     m, cfg = t.map, t.config
     lane0 = np.maximum(t.path[:, 0], 0)
     right, left = m.right[lane0], m.left[lane0]
@@ -24,23 +29,67 @@ def lane_changes(t: Traffic) -> None:
     near_merge = ((m.ends_at_merge[lane0] & (s > length - 12.0)) | (m.starts_at_merge[lane0] & (s < 8.0)))
     near_exit = (m.n_successors[lane0] > 1) & (s > length - 12.0)  # moving right in front of an exit
     right = np.where(near_exit, -1, right)
+    if cfg.lane_changes == "intention":
+        _finish_intended(t)
+        chosen = _intended(t, right, left, near_merge)
+    else:
+        chosen = _random(t, right, left, near_merge)
+    if chosen is not None:
+        _change(t, *chosen, lane0, right, left)
+
+
+def _random(t: Traffic, right: np.ndarray, left: np.ndarray, near_merge: np.ndarray) -> tuple[int, int] | None:
+    """(row, side) of one random try at the rates of `lane_change_rate` (side 0: right, 1: left), or None."""
+    cfg = t.config
     ok = (t.active & ((right >= 0) | (left >= 0)) & (t.lc_dist >= cfg.lane_change_length)
-          & (s > 1.0) & (t.lead_gap > cfg.lane_change_length) & ~near_merge)
+          & (t.s > 1.0) & (t.lead_gap > cfg.lane_change_length) & ~near_merge)
     rows = np.flatnonzero(ok)
     if not len(rows):
-        return
+        return None
     rate_right, rate_left = cfg.lane_change_rate
     u = t.rng.random(3)
     if u[0] >= (rate_right + rate_left) * cfg.decision_period * len(rows):
-        return
+        return None
     row = int(rows[int(u[1] * len(rows))])
     side = 0 if u[2] * (rate_right + rate_left) < rate_right else 1  # 0: to the right, 1: to the left
+    return row, side
+
+
+def _intended(t: Traffic, right: np.ndarray, left: np.ndarray, near_merge: np.ndarray) -> tuple[int, int] | None:
+    """Vehicles whose intention has a neighbour lane on its side signal; the one signalling longest for at
+    least `signal_time` tries (row, side), or None."""
+    cfg = t.config
+    wish = t.intention[:, LANE_CHANGE]
+    target = np.where(wish == LEFT, left, np.where(wish == RIGHT, right, -1))
+    lane0 = np.maximum(t.path[:, 0], 0)
+    # Never into a lane of lower rank (an acceleration lane that must give way at its end).
+    target = np.where(t.roles.priority[np.maximum(target, 0)] >= t.roles.priority[lane0], target, -1)
+    able = t.active & (target >= 0) & (t.lc_dist >= cfg.lane_change_length) & (t.s > 1.0) & ~near_merge
+    t.lc_signal = np.where(able & (t.lc_signal < 0), t.time, np.where(able | t.lc_changing, t.lc_signal, -1.0))
+    ready = able & (t.lc_signal >= 0) & (t.time - t.lc_signal >= cfg.signal_time - 1e-9)
+    if not ready.any():
+        return None
+    row = int(np.flatnonzero(ready)[np.argmin(t.lc_signal[ready])])
+    return row, (0 if wish[row] == RIGHT else 1)
+
+
+def _finish_intended(t: Traffic) -> None:
+    """Intended lane changes that are over: the vehicle now keeps its lane, its signal goes off."""
+    done = t.lc_changing & (t.lc_dist >= t.config.lane_change_length)
+    t.intention[done, LANE_CHANGE] = KEEP
+    t.lc_signal[done] = -1.0
+    t.lc_changing &= ~done
+
+
+def _change(t: Traffic, row: int, side: int, lane0: np.ndarray, right: np.ndarray, left: np.ndarray) -> None:
+    """Move vehicle `row` to its right (side 0) or left (1) neighbour if the target lane has room."""
+    m, cfg = t.map, t.config
     target = int(right[row] if side == 0 else left[row])
     if target < 0:
         return
     s_new = t.s[row] * m.length[target] / m.length[lane0[row]]
     # The move must be over before any junction lane (an exit): the lane after the target goes on.
-    after = int(t._choose_successor(np.array([target]))[0])
+    after = int(t._choose_successor(np.array([target]), np.array([row]) if t.urban else None)[0])
     if after < 0 or m.in_junction[after]:
         return
     beyond = m.successors[after, : m.n_successors[after]]
@@ -65,6 +114,8 @@ def lane_changes(t: Traffic) -> None:
     if t.ego is not None and np.hypot(*(t._current_pos[t.vehicle_slots[row], :2]
                                            - (t.ego.x, t.ego.y))) < 12.0:
         return
+    if cfg.lane_changes == "intention" and behind.any() and not _safe_for_follower(t, row, behind, gap_behind, v):
+        return
     shift = m.width[lane0[row]] * (1.0 if side == 0 else -1.0)  # the old centre seen from the new lane
     sm, _ = smoothstep(t.lc_dist[row] / cfg.lane_change_length)
     d_now = t.d_pref[row] + t.lc_shift[row] * (1.0 - sm)
@@ -74,4 +125,19 @@ def lane_changes(t: Traffic) -> None:
     t.s[row] = s_new
     t.lc_shift[row] = d_now + shift - t.d_pref[row]
     t.lc_dist[row] = 0.0
+    t.lc_changing[row] = cfg.lane_changes == "intention"
     t.stats["lane_changes"] += 1
+
+
+def _safe_for_follower(t: Traffic, row: int, behind: np.ndarray, gap_behind: np.ndarray, v: np.ndarray) -> bool:
+    """MOBIL's safety criterion: the nearest agent behind in the target lane (mask `behind` over the agents),
+    with the changer as its new leader, needs an IDM deceleration of at most `safe_decel` (the ego counts
+    with `EGO_IDM`'s parameters)."""
+    cfg = t.config
+    candidates = np.flatnonzero(behind)
+    j = int(candidates[np.argmin(gap_behind[candidates])])
+    a, b, headway = (t.a_max[j], t.b_comf[j], t.headway[j]) if j < t.nv else EGO_IDM
+    vf, vc = v[j], t.v[row]
+    s_star = cfg.min_gap + max(0.0, vf * headway + vf * (vf - vc) / (2.0 * np.sqrt(a * b)))
+    decel = a * ((s_star / max(gap_behind[j], 0.05)) ** 2 - 1.0)
+    return bool(decel <= cfg.safe_decel)

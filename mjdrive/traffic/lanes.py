@@ -18,7 +18,7 @@ SPAWN_STEP = 3.0  # [m] candidate spawn points along each lane
 SPAWN_MARGIN = 5.0  # [m] from the lane ends
 
 
-def _polyline_distance(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
+def polyline_distance(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
     """Distance (K,) [m] from points (K,2) to a polyline (N,2) (exact, over all segments)."""
     a, b = polyline[:-1], polyline[1:]
     ab = b - a
@@ -27,7 +27,7 @@ def _polyline_distance(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
     return np.hypot(*(points[:, None] - closest).transpose(2, 0, 1)).min(axis=1)
 
 
-def _corners(centre: np.ndarray, heading: np.ndarray, half_length: float, half_width: float) -> np.ndarray:
+def footprint_points(centre: np.ndarray, heading: np.ndarray, half_length: float, half_width: float) -> np.ndarray:
     """Footprint corners and front/rear midpoints (K,6,2) [m] of boxes at centre (K,2), heading (K,)."""
     c, s = np.cos(heading)[:, None], np.sin(heading)[:, None]
     lx = np.array([1, 1, -1, -1, 1, -1]) * half_length
@@ -171,11 +171,11 @@ class TrafficMap:
                 front = np.arange(-10.0, lane.length + 1e-9, 0.1)
                 centre_s = front - hl
                 centre = lane.position(centre_s)
-                pts = _corners(centre, lane.heading(centre_s), hl, hw).reshape(-1, 2)
+                pts = footprint_points(centre, lane.heading(centre_s), hl, hw).reshape(-1, 2)
                 clear = np.ones(len(front), dtype=bool)
                 for p in [*priority, m]:
                     other = rm.lanes[p]
-                    dist = _polyline_distance(pts, other.centre).reshape(len(front), -1).min(axis=1)
+                    dist = polyline_distance(pts, other.centre).reshape(len(front), -1).min(axis=1)
                     clear &= dist >= other.width / 2 + STOP_CLEARANCE
                 blocked = np.flatnonzero(~clear)
                 stop = front[blocked[0] - 1] if len(blocked) and blocked[0] > 0 else front[0]

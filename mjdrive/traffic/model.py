@@ -43,8 +43,11 @@ import mujoco
 import numpy as np
 
 from mjdrive.roads import RoadMap
+from mjdrive.roads.conflicts import ConflictZones
+from mjdrive.traffic.conflicts import ApproachTable
 from mjdrive.traffic.following import accelerations, follower_table
 from mjdrive.traffic.geometry import smoothstep, yaw_quat
+from mjdrive.traffic.intentions import SCENARIOS, LaneRoles, note_ring_progress, successor_preference
 from mjdrive.traffic.lane_changes import lane_changes
 from mjdrive.traffic.lanes import TrafficMap
 from mjdrive.traffic.params import (
@@ -76,9 +79,18 @@ class Traffic:
     left the map and wait to respawn)."""
 
     def __init__(self, road_map: RoadMap | TrafficMap, kinds: Sequence[str],
-                 config: TrafficConfig | None = None):
+                 config: TrafficConfig | None = None, conflicts: ConflictZones | None = None):
+        """`conflicts` (the map's conflict-zone table, `roads.conflict_zones`) switches on the urban rules:
+        right of way at every crossing and merge of the table, intentions, intention-driven lane changes
+        with a signalling phase; without it, entries yield at merges by gap acceptance (the roundabout)."""
         self.config = cfg = config or TrafficConfig()
         self.map = road_map if isinstance(road_map, TrafficMap) else TrafficMap(road_map, cfg.lateral_accel)
+        self.urban = conflicts is not None
+        self.zones = conflicts
+        self.roles = LaneRoles.of(self.map.road_map) if self.urban else None
+        self.approaches = (ApproachTable.from_zones(conflicts, self.map.road_map, self.roles.ring) if self.urban
+                           else None)
+        self.ego_exit = -1  # the ego's ring exit lane (roundabout intentions), see `set_ego_route`
         self.kinds = tuple(kinds)
         unknown = set(self.kinds) - set(ROAD_USER_TYPES)
         if unknown:
@@ -136,7 +148,15 @@ class Traffic:
         self._slot_row = np.full(self.n, -1, dtype=np.int64)  # vehicle row of each slot (-1: pedestrian)
         self._slot_row[self.vehicle_slots] = np.arange(self.nv)
         self.rng = np.random.default_rng(0)
+        self.intent_rng = np.random.default_rng(1)
         self._reset_state()
+
+    def set_ego_route(self, route: Sequence[int] | None) -> None:
+        """The ego's route (lane ids): roundabout intentions are relative to its ring exit."""
+        self.ego_exit = -1
+        if self.urban and route is not None:
+            exits = [lane for lane in route if self.roles.ring_exit[lane]]
+            self.ego_exit = int(exits[0]) if exits else -1
 
     # --- binding and state ----------------------------------------------------------------------------
     def bind(self, model: mujoco.MjModel, prefix: str = "traffic_") -> None:
@@ -168,6 +188,10 @@ class Traffic:
         self.ped_walking = np.zeros(npd, dtype=bool)
         self.ped_wait = np.zeros(npd)  # [s] left to wait at the kerb before looking for a gap
         self.ped_speed = np.zeros(npd)  # [m/s]
+        self.intention = np.zeros((nv, len(SCENARIOS)), dtype=np.int64)  # see intentions.py
+        self.ring_passed = np.zeros(nv, dtype=bool)  # planned path went past the ego's exit
+        self.lc_signal = np.full(nv, -1.0)  # [s] time the lane-change signal came on (-1: off)
+        self.lc_changing = np.zeros(nv, dtype=bool)  # an intended lane change under way
         self.time = 0.0  # [s]
         self._plan: _Plan | None = None
         self._k = 0  # index of the current substep in the plan
@@ -177,11 +201,20 @@ class Traffic:
         self._current_quat = yaw_quat(self._current_yaw)
         self._current_speed = np.zeros(self.n)
 
-    def _choose_successor(self, lane: np.ndarray) -> np.ndarray:
-        """A uniformly random successor of each lane (-1 for a dead end or -1)."""
+    def _choose_successor(self, lane: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """A uniformly random successor of each lane (-1 for a dead end or -1); with urban rules, one that
+        honours the intentions of vehicles `rows` (whose paths `lane` belongs to)."""
         m = self.map
         valid = lane >= 0
         lane0 = np.maximum(lane, 0)
+        if self.urban and rows is not None and len(rows):
+            allowed = successor_preference(self, rows, lane)  # (K, W)
+            count = allowed.sum(axis=1) * valid
+            pick = np.floor(self.rng.random(len(lane)) * np.maximum(count, 1)).astype(np.int64)
+            column = np.argmax(np.cumsum(allowed, axis=1) > pick[:, None], axis=1)
+            chosen = np.where(count > 0, m.successors[lane0, column], -1)
+            note_ring_progress(self, rows, lane, chosen)
+            return chosen
         count = np.where(valid, m.n_successors[lane0], 0)
         pick = np.floor(self.rng.random(len(lane)) * np.maximum(count, 1)).astype(np.int64)
         return np.where(count > 0, m.successors[lane0, np.minimum(pick, m.successors.shape[1] - 1)], -1)
@@ -189,7 +222,7 @@ class Traffic:
     def _fill_path(self, rows: np.ndarray, start: int = 1) -> None:
         """Random successors for path[rows, start:]."""
         for k in range(start, PATH):  # loop over path depth, not over road users
-            self.path[rows, k] = self._choose_successor(self.path[rows, k - 1])
+            self.path[rows, k] = self._choose_successor(self.path[rows, k - 1], rows)
 
     # --- episodes --------------------------------------------------------------------------------------
     def reset(self, rng: np.random.Generator, ego: EgoState | None = None, keep_clear: float = 12.0,
@@ -197,6 +230,8 @@ class Traffic:
         """New episode: place a random `density` share of the vehicles on the map's spawn points (none within
         `keep_clear` [m] of the ego), pedestrians at kerbs, then run `warmup` [s] of traffic."""
         self.rng = rng
+        if self.urban:
+            self.intent_rng = np.random.default_rng(int(rng.integers(2**63)))
         self._reset_state()
         self.ego = ego
         m = self.map
@@ -224,15 +259,22 @@ class Traffic:
         self._k = 0
 
     def place(self, row: int, path: Sequence[int], s: float, speed: float, desired_speed: float | None = None,
-              lateral: float = 0.0) -> None:
+              lateral: float = 0.0, intentions: dict[str, int] | None = None) -> None:
         """Put vehicle `row` (index among the vehicle slots) at s [m] on path[0], moving at `speed` [m/s]
         along `path` (lane ids; random successors after it), with a desired speed [m/s] and lateral offset
-        [m] (for scenes and tests). Takes effect from the next decision."""
+        [m], and `intentions` by scenario name (e.g. {"merge": TAKE_WAY}; urban rules; others 0), for scenes
+        and tests. Takes effect from the next decision."""
         m = self.map
         self._settle()
         lanes = [int(x) for x in path][:PATH]
         self.generation[self.vehicle_slots[row]] += 1
         self.active[row] = True
+        self.intention[row] = 0
+        for name, value in (intentions or {}).items():
+            if name not in SCENARIOS:
+                raise ValueError(f"unknown intention scenario {name!r}; valid: {', '.join(SCENARIOS)}")
+            self.intention[row, SCENARIOS.index(name)] = int(value)
+        self.ring_passed[row], self.lc_signal[row], self.lc_changing[row] = False, -1.0, False
         self.path[row] = -1
         self.path[row, : len(lanes)] = lanes
         if len(lanes) < PATH:
@@ -351,7 +393,7 @@ class Traffic:
             rows = np.flatnonzero(over)
             self.s[rows] -= self.map.length[self.path[rows, 0]]
             self.path[rows, :-1] = self.path[rows, 1:]
-            self.path[rows, -1] = self._choose_successor(self.path[rows, -2])
+            self.path[rows, -1] = self._choose_successor(self.path[rows, -2], rows)
             gone = rows[self.path[rows, 0] < 0]
             if len(gone):
                 self.active[gone] = False
@@ -491,5 +533,6 @@ class Traffic:
              "length": np.array([ego.length]), "width": np.array([ego.width]), "a": np.array([accel]),
              "b": np.array([decel]), "T": np.array([headway]), "xy": np.array([[ego.x, ego.y]]),
              "yaw": np.array([ego.yaw]),
-             "accept_gap": self.config.accept_gap if accept_gap is None else accept_gap}
+             "accept_gap": self.config.accept_gap if accept_gap is None else accept_gap,
+             "courteous": np.zeros(1, dtype=bool)}
         return float(accelerations(self, f, ctx)[0])

@@ -81,12 +81,38 @@ class TrafficConfig(Config):
     pedestrian_wait: tuple[float, float] = param((2.0, 10.0), "wait at the kerb before looking for a gap "
                                                  "(uniform, min and max)", "s", ge=0.0, le=120.0)
     respawn: bool = param(True, "vehicles that left the map re-enter at the sources")
+    critical_gap_crossing: float = param(2.0, "urban rules: a yielding vehicle crosses if every priority agent "
+                                         "reaches the zone this long after it has cleared it", "s", ge=0.0, le=20.0)
+    critical_gap_merge: float = param(1.5, "urban rules: ... and merges if they reach the merge point this long "
+                                      "after it", "s", ge=0.0, le=20.0)
+    lane_changes: str = param("random", "lane changes at random rates (roundabout) or by intention with a "
+                              "MOBIL-like safety check and a signalling phase (urban rules)",
+                              choices=("random", "intention"))
+    signal_time: float = param(1.0, "indicator on before an intended lane change starts", "s", ge=0.0, le=10.0)
+    safe_decel: float = param(3.0, "MOBIL safety: the new follower never has to brake harder", "m/s^2",
+                              gt=0.0, le=10.0)
+    courtesy_range: float = param(40.0, "a yielding vehicle opens a gap for agents this close to the merge point",
+                                  "m", ge=0.0, le=200.0)
+    desired_speed: tuple[float, float] | None = param(None, "urban rules: vehicles' maximum speeds drawn in "
+                                                      "[min, max] (None: each kind's range)", "m/s", ge=0.5, le=40.0)
+    lane_change_intentions: tuple[float, float, float] = param((0.6, 0.2, 0.2), "shares of keep, left, right",
+                                                               ge=0.0, le=1.0)
+    turn_intentions: tuple[float, float, float] = param((0.4, 0.3, 0.3), "shares of straight, left, right",
+                                                        ge=0.0, le=1.0)
+    merge_intentions: tuple[float, float] = param((0.5, 0.5), "shares of yield, take way", ge=0.0, le=1.0)
+    roundabout_intentions: tuple[float, float] = param((0.5, 0.5), "shares of leaving before, after the ego's exit",
+                                                       ge=0.0, le=1.0)
     decision_period: float = param(0.6, "behaviour updates (about a driver's reaction time)", "s", gt=0.0, le=5.0)
     substep: float = param(0.02, "pose resolution (mocap written at this period)", "s", gt=0.0, le=0.2)
 
     def check(self) -> None:
-        if self.pedestrian_wait[0] > self.pedestrian_wait[1]:
-            raise ConfigError(f"pedestrian_wait={self.pedestrian_wait}: the minimum must not exceed the maximum")
+        for name in ("pedestrian_wait", "desired_speed"):
+            pair = getattr(self, name)
+            if pair is not None and pair[0] > pair[1]:
+                raise ConfigError(f"{name}={pair}: the minimum must not exceed the maximum")
+        for name in ("lane_change_intentions", "turn_intentions", "merge_intentions", "roundabout_intentions"):
+            if sum(getattr(self, name)) <= 0:
+                raise ConfigError(f"{name}={getattr(self, name)}: the shares must not all be zero")
 
 
 @dataclass

@@ -1,0 +1,226 @@
+"""Right of way at conflict zones (crossings and merges of lanes), from the map's conflict-zone table.
+
+`ApproachTable` turns the roads' `ConflictZones` (one row per pair of lanes that cross or merge, with who
+yields) into approaches: one row per (zone, side), the stretch [s_in, s_out] [m] of the approach lane inside
+the zone and the same stretch on the other lane. At every decision `conflict_stops` adds, for every vehicle,
+a stop line before each zone it must not enter yet:
+
+* a yielding approach waits while a priority agent (a vehicle or the ego) reaches the zone within the
+  critical gap (crossings and merges have their own) or is inside it;
+* on a tie (equal ranks) the agent that reaches the zone later waits;
+* nobody enters a zone while an agent coming from the other lane occupies it;
+* a vehicle that has passed its stop line (committed) goes on.
+Every quantity is an (agents x approaches) array: no loop over road users.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from mjdrive.roads.conflicts import CROSSING, TIE, YIELD_A, YIELD_B, ConflictZones
+from mjdrive.traffic.intentions import MERGE, YIELD
+from mjdrive.traffic.lanes import REFERENCE_HALF_SIZE, footprint_points, polyline_distance
+
+if TYPE_CHECKING:
+    from mjdrive.traffic.model import Traffic
+
+STOP_MARGIN = 1.0  # [m] a waiting vehicle's front bumper stays at least this far before the zone
+STOP_CLEARANCE = 0.5  # [m] ... and its footprint this far outside the other lane's strip
+STOP_SEARCH = 15.0  # [m] how far back the stop line may move
+COMMITTED = 0.5  # [m] past the stop line: the vehicle goes on (it could not stop before the zone)
+EDGE_MARGIN = 0.5  # [m] before an occupied zone
+MERGE_RANGE = 60.0  # [m] agents farther from a merge point than this do not take part in the zipper
+CLEAR_ACCEL = 1.5  # [m/s^2] a yielding vehicle's acceleration through the zone, for its time to clear it
+
+
+@dataclass(frozen=True)
+class ApproachTable:
+    """One row per (zone, side) of a map's conflict zones."""
+
+    lane: np.ndarray  # (R,) the approach lane
+    s_in: np.ndarray  # (R,) [m] where the zone starts on it
+    s_out: np.ndarray  # (R,) [m] where it ends
+    other: np.ndarray  # (R,) the other lane of the zone
+    o_in: np.ndarray  # (R,) [m] the zone on the other lane
+    o_out: np.ndarray  # (R,) [m]
+    yields: np.ndarray  # (R,) bool: this side gives way
+    tie: np.ndarray  # (R,) bool: equal ranks, first come first served
+    timed: np.ndarray  # (R,) bool: taken by time gaps at the give-way line (crossings, merges in a junction)
+    merge: np.ndarray  # (R,) bool: the lanes merge (else they cross)
+    zone: np.ndarray  # (R,) row in the ConflictZones table
+    stop: np.ndarray  # (R,) [m] front-bumper stop line along the approach lane
+    courtesy: np.ndarray  # (R,) bool: a merge where courteous vehicles open gaps (not a roundabout entry)
+
+    @property
+    def partner(self) -> np.ndarray:
+        """(R,) the row of the zone's other side."""
+        half = len(self.lane) // 2
+        return (np.arange(len(self.lane)) + half) % max(len(self.lane), 1)
+
+    @property
+    def other_stop(self) -> np.ndarray:
+        """(R,) [m] the give-way line of the other side's approach, along the other lane."""
+        return self.stop[self.partner]
+
+    def __len__(self) -> int:
+        return len(self.lane)
+
+    @classmethod
+    def from_zones(cls, zones: ConflictZones, road_map=None, ring: np.ndarray | None = None) -> ApproachTable:
+        """The approaches of `zones`; with `road_map`, each stop line is moved back until a car waiting
+        there keeps STOP_CLEARANCE outside the other lane's strip (an angled approach's front corner would
+        otherwise reach into it)."""
+        z = np.arange(len(zones))
+        tie = zones.who_yields == TIE
+        table = cls(
+            lane=np.concatenate([zones.lane_a, zones.lane_b]).astype(np.int64),
+            s_in=np.concatenate([zones.s_a_in, zones.s_b_in]), s_out=np.concatenate([zones.s_a_out, zones.s_b_out]),
+            other=np.concatenate([zones.lane_b, zones.lane_a]).astype(np.int64),
+            o_in=np.concatenate([zones.s_b_in, zones.s_a_in]), o_out=np.concatenate([zones.s_b_out, zones.s_a_out]),
+            yields=np.concatenate([zones.who_yields == YIELD_A, zones.who_yields == YIELD_B]),
+            tie=np.concatenate([tie, tie]), timed=np.concatenate([zones.kind == CROSSING] * 2),
+            merge=np.concatenate([zones.kind != CROSSING] * 2),
+            zone=np.concatenate([z, z]), stop=np.concatenate([zones.s_a_in, zones.s_b_in]) - STOP_MARGIN,
+            courtesy=np.concatenate([zones.kind != CROSSING] * 2),
+        )
+        if road_map is not None:  # merges inside a junction are taken like crossings, at the junction's entry
+            in_junction = np.array([road_map.lanes[int(i)].in_junction for i in range(len(road_map.lanes))])
+            junction_merge = table.merge & (in_junction[table.lane] | in_junction[table.other])
+            object.__setattr__(table, "timed", table.timed | junction_merge)
+            object.__setattr__(table, "courtesy", table.courtesy & ~junction_merge)
+        if ring is not None:  # entries join a ring: circulating vehicles keep their right of way
+            ring_merge = ring[table.lane] | ring[table.other]
+            object.__setattr__(table, "courtesy", table.courtesy & ~ring_merge)
+        if road_map is not None:
+            stops = np.array([_stop_line(road_map.lanes[int(lane)], road_map.lanes[int(other)], float(s_in))
+                              for lane, other, s_in in zip(table.lane, table.other, table.s_in, strict=True)])
+            # Inside a junction nobody stops halfway: the stop line of every zone on a junction lane is its
+            # entry (the give-way line), and a vehicle that has entered clears the junction.
+            junction = np.array([road_map.lanes[int(lane)].in_junction for lane in table.lane], dtype=bool)
+            stops = np.where(junction, np.minimum(stops, -STOP_MARGIN), stops)
+            object.__setattr__(table, "stop", np.minimum(table.stop, stops))
+        return table
+
+
+def _stop_line(lane, other, s_in: float) -> float:
+    """The farthest front-bumper position [m] along `lane`, before `s_in`, where a reference car keeps
+    STOP_CLEARANCE outside `other`'s strip (build time)."""
+    half_length, half_width = REFERENCE_HALF_SIZE
+    front = np.arange(s_in - STOP_MARGIN, s_in - STOP_SEARCH, -0.1)
+    centre_s = front - half_length
+    corners = footprint_points(lane.position(centre_s), lane.heading(centre_s), half_length, half_width)
+    distance = polyline_distance(corners.reshape(-1, 2), other.centre).reshape(len(front), -1).min(axis=1)
+    clear = np.flatnonzero(distance >= other.width / 2 + STOP_CLEARANCE)
+    return float(front[clear[0]]) if len(clear) else float(front[-1])
+
+
+def _positions(offset: np.ndarray, s: np.ndarray, length: np.ndarray, lanes: np.ndarray):
+    """Front and rear bumper (A, R) [m] of every agent along each lane of `lanes` (inf off its path)."""
+    base = -offset[:, lanes]  # where the agent's lane starts, seen from the start of each lane
+    front = base + (s + length / 2)[:, None]
+    rear = base + (s - length / 2)[:, None]
+    return front, rear
+
+
+def zone_state(t: Traffic, ctx: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For every agent and approach: its front bumper along the approach lane (A, R) [m] (-inf off its
+    path), its time to the zone along the other lane (A, R) [s] (inf off it), and whether it occupies the
+    zone from the other lane (A, R): inside it, or committed past its own give-way line."""
+    table, cfg = t.approaches, t.config
+    offset, s, v, length = ctx["offset"], ctx["s"], ctx["v"], ctx["length"]
+    front_own, _ = _positions(offset, s, length, table.lane)
+    front_own = np.where(np.isfinite(front_own), front_own, -np.inf)
+    front_o, rear_o = _positions(offset, s, length, table.other)
+    on_other = np.isfinite(front_o)
+    # An agent on both lanes' paths (the zone's lanes follow each other) comes the same way: not a conflict.
+    on_other &= ~np.isfinite(offset[:, table.lane])
+    # Inside the zone, or committed past the give-way line of a yielding approach (it will enter).
+    gives_way = (table.yields | table.tie)[table.partner]
+    entered = np.where(gives_way, np.minimum(table.o_in, table.other_stop + COMMITTED), table.o_in)  # (R,) [m]
+    inside = on_other & (front_o > entered[None]) & (rear_o < table.o_out[None])
+    before = on_other & ~inside & (front_o <= table.o_in[None])
+    speed = np.maximum(v, cfg.merge_speed)[:, None]
+    ttz = np.where(before, (table.o_in[None] - front_o) / speed, np.where(inside, 0.0, np.inf))
+    return front_own, ttz, inside
+
+
+def conflict_columns(t: Traffic, ctx: dict, f: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Gap columns (F, 2R) [m], their obstacle speeds (F, 2R) [m/s] and minimum gaps (2R,) [m] for the
+    followers `f` (rows of the agents in `ctx`), and the distance (F,) [m] to the nearest give-way line
+    still ahead (inf if none: the follower approaches it slowly enough to stop).
+
+    Crossings: stop at the give-way line while a priority agent would reach the zone less than the
+    critical gap after the follower has cleared it (on a tie: while another agent gets there first); stop
+    at the zone's edge while an agent from the other lane occupies it.
+    Merges (a zipper over the distance to the merge point): agents of the other lane nearer the merge
+    point are virtual leaders of the yielding side, and of the priority side once committed (or, for a
+    courteous vehicle, within `courtesy_range`); a yielding vehicle waits at its give-way line while a
+    priority agent behind it in that order would come closer than its headway."""
+    table, cfg = t.approaches, t.config
+    rows = f["rows"]
+    n_f = len(rows)
+    offset, s, v, length = ctx["offset"], ctx["s"], ctx["v"], ctx["length"]
+    front_own, ttz, inside = zone_state(t, ctx)
+    front_o, _ = _positions(offset, s, length, table.other)
+    others = np.ones((n_f, len(s)), dtype=bool)
+    others[np.arange(n_f), rows] = False  # (F, A): every agent but the follower itself
+    others = others[:, :, None]
+    timed, zipped = table.timed[None], ~table.timed[None]  # (1, R)
+
+    # --- crossings (and merges inside junctions) ---------------------------------------------------------
+    v_me = np.maximum(v[rows], 0.0)[:, None]
+    length_me = length[rows][:, None]
+    to_clear = table.s_out[None] + length_me - front_own[rows]
+    to_clear = np.where(np.isfinite(to_clear), np.maximum(to_clear, 0.0), 0.0)
+    t_clear = (np.sqrt(v_me**2 + 2 * CLEAR_ACCEL * to_clear) - v_me) / CLEAR_ACCEL  # (F, R) [s]
+    soon = (others & (ttz[None] < (t_clear + cfg.critical_gap_crossing)[:, None, :])).any(axis=1)  # (F, R)
+    occupied = (others & inside[None]).any(axis=1)
+    my_ttz = np.maximum(table.s_in[None] - front_own[rows], 0.0) / np.maximum(v_me, cfg.merge_speed)
+    first = (others & (ttz[None] < my_ttz[:, None, :])).any(axis=1)  # another agent gets there first
+    wait_timed = timed & ((table.yields[None] & soon) | (table.tie[None] & first))
+
+    # --- merges: committed agents ahead are virtual leaders; outside junctions, a zipper ------------------
+    d_me = table.s_out[None] - front_own[rows]  # (F, R) [m] my front bumper to the merge point
+    d_them = table.o_out[None] - front_o  # (A, R) [m] theirs (inf off the other lane)
+    near = np.isfinite(d_them) & (d_them > -length[:, None]) & (d_them < MERGE_RANGE)  # (A, R)
+    committed = inside  # past their give-way line (or in the zone)
+    courteous = f["courteous"][:, None] & table.courtesy[None] & (d_me < cfg.courtesy_range)  # (F, R)
+    gives_way = (table.yields | table.tie)[None]
+    zipper = zipped[:, None] & (gives_way[:, None] | courteous[:, None, :])  # (F, 1, R)
+    follows = committed[None] | zipper  # (F, A, R) committed agents ahead are leaders in every merge
+    ahead = others & table.merge[None, None] & near[None] & (d_them[None] < d_me[:, None, :]) & follows
+    ahead &= np.isfinite(d_me)[:, None, :]
+    spacing = np.where(ahead, d_me[:, None, :] - np.where(ahead, d_them[None], 0.0) - length[None, :, None], np.inf)
+    leader_gap = spacing.min(axis=1)  # (F, R)
+    nearest = np.argmin(spacing, axis=1)  # (F, R) the virtual leader
+    leader_speed = v[nearest]
+    behind = others & zipped[:, None] & near[None] & (d_them[None] >= d_me[:, None, :]) & np.isfinite(d_me)[:, None, :]
+    room = np.where(behind, d_them[None] - np.where(behind, d_me[:, None, :], 0.0) - length_me[:, :, None], np.inf)
+    needed = cfg.min_gap + v[None, :, None] * cfg.critical_gap_merge  # (1, A, 1) [m] the agent behind's headway
+    # A courteous agent behind keeps its distance to the follower (a virtual leader of its own): no conflict.
+    letting_in = courteous_agents(t, ctx)[None, :, None] & table.courtesy[None, None]
+    cut_off = (behind & ~letting_in & (room < needed)).any(axis=1)  # (F, R)
+    wait_merge = zipped & table.yields[None] & cut_off
+
+    # --- stop lines ----------------------------------------------------------------------------------------
+    stop = table.stop[None] - front_own[rows]  # (F, R) [m] to the give-way line
+    holding = (stop > -COMMITTED) & np.isfinite(stop)  # not yet committed
+    edge = table.s_in[None] - EDGE_MARGIN - front_own[rows]  # (F, R) [m] to the zone's edge
+    before_edge = (edge > -COMMITTED) & np.isfinite(edge)
+    stops = np.minimum(np.where((wait_timed | wait_merge) & holding, stop, np.inf),
+                       np.where(timed & occupied & before_edge, edge, np.inf))
+    to_line = np.where(gives_way & holding, stop, np.inf).min(axis=1) if len(table) else np.full(n_f, np.inf)
+    gap = np.concatenate([stops, leader_gap], axis=1)
+    lead = np.concatenate([np.zeros_like(stops), leader_speed], axis=1)
+    s0 = np.concatenate([np.full(len(table), cfg.stop_gap), np.full(len(table), cfg.min_gap)])
+    return gap, lead, s0, to_line
+
+
+def courteous_agents(t: Traffic, ctx: dict) -> np.ndarray:
+    """(A,) agents that open gaps at merges: vehicles with merge intention YIELD (never the ego)."""
+    out = np.zeros(len(ctx["s"]), dtype=bool)
+    out[: t.nv] = t.intention[:, MERGE] == YIELD
+    return out
