@@ -145,6 +145,17 @@ def test_vector_backends_step_bit_identical_episodes(tmp_path, ray_session):
         _assert_same(reference_logs, _logs(tmp_path / name), f"{name} logs")
 
 
+def test_camera_images_rendered_in_workers_are_those_rendered_in_process():
+    """Each worker renders with its own GL context (MUJOCO_GL), created in the worker: the same pixels."""
+    def env(**backend):
+        return make_vec_env("waypoints", "straight", num_envs=2, observation="camera", image_size=32, time_limit=1.0,
+                            **backend)
+
+    reference = _rollout(env(), steps=12)
+    assert reference[1][0]["image"].std() > 0  # a real picture, not a blank buffer
+    _assert_same(reference, _rollout(env(workers=2), steps=12), "2 workers")
+
+
 def test_evaluation_rows_and_logs_are_the_same_at_1_2_4_workers_on_ray_and_after_a_worker_is_killed(
         tmp_path, ray_session, capfd):
     def run(name: str, **backend) -> tuple[list[dict], dict]:
