@@ -160,6 +160,8 @@ class Vehicle:
         self._acc = int(model.sensor_adr[oid(mujoco.mjtObj.mjOBJ_SENSOR, "imu_acc")])
         self._gz = float(model.opt.gravity[2])  # [m/s^2]
         self._dofs = np.concatenate([np.arange(self._v, self._v + 6), steer_v, self._spin_v, susp_v])
+        self._ctrl = np.zeros(p.n_ctrl)  # scratch controls of `apply`
+        self._n_brake = 2 + len(p.driven_wheels)  # index of the first brake in ctrl order
         self._model = model
 
     # --- commands ---------------------------------------------------------------------------------------
@@ -169,9 +171,20 @@ class Vehicle:
 
     def apply(self, data: mujoco.MjData, throttle: float, steer: float, brake: float) -> None:
         """Write the controls for throttle in [0, 1], steer in [-1, 1] (+ = left), brake in [0, 1] at the
-        car's current speed. Out-of-range values are clipped; NaN or inf raise ValueError."""
-        cmd = np.array((throttle, steer, brake), dtype=np.float64)
-        data.ctrl[self.actuator_ids] = commands_to_ctrl(cmd, self.params, self.speed(data))
+        car's current speed. Out-of-range values are clipped; NaN or inf raise ValueError.
+
+        `commands_to_ctrl` for one car, in scalars (the per-step path): the same operations, bit for bit (min/max
+        keep a clipped -0.0 as np.clip does; the steering angles use numpy's tan and arctan)."""
+        t, st, b = float(throttle), float(steer), float(brake)
+        if not (math.isfinite(t) and math.isfinite(st) and math.isfinite(b)):
+            raise ValueError(f"vehicle commands (throttle, steer, brake) must be finite, got {[t, st, b]}")
+        p = self.params
+        left, right = ackermann(np.float64(min(max(st, -1.0), 1.0) * p.max_steer), p.wheelbase, p.track)
+        hold = BRAKE_HOLD_SPEED / max(abs(self.speed(data)), BRAKE_HOLD_SPEED)
+        self._ctrl[0], self._ctrl[1] = left, right
+        self._ctrl[2 : self._n_brake] = min(max(t, 0.0), 1.0)
+        self._ctrl[self._n_brake :] = min(max(b, 0.0), 1.0) * hold
+        data.ctrl[self.actuator_ids] = self._ctrl
 
     # --- read-outs --------------------------------------------------------------------------------------
     def _quat(self, data: mujoco.MjData) -> tuple[float, float, float, float]:

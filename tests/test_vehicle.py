@@ -210,6 +210,22 @@ def test_commands_to_ctrl_vectorised(car):
     np.testing.assert_allclose(brake, [0.5, 0.5 * BRAKE_HOLD_SPEED / 10.0])
 
 
+def test_apply_writes_commands_to_ctrl_bit_for_bit(car):
+    """`Vehicle.apply` (scalars, the per-step path) and `commands_to_ctrl` (arrays) give the same bytes,
+    clipped signed zeros and the brake hold below BRAKE_HOLD_SPEED included."""
+    model, veh = car
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(1)
+    special = [-0.0, 0.0, 1.0, -1.0, 2.0, -3.0, 0.5]
+    for _ in range(300):
+        command = [float(rng.choice(special)) if rng.random() < 0.3 else float(rng.uniform(-1.5, 1.5))
+                   for _ in range(3)]
+        veh.reset(data, 0.0, 0.0, 0.0, float(rng.choice([0.0, -0.1, BRAKE_HOLD_SPEED, rng.uniform(-5.0, 40.0)])))
+        veh.apply(data, *command)
+        expected = commands_to_ctrl(np.array(command), veh.params, veh.speed(data))
+        assert data.ctrl[veh.actuator_ids].tobytes() == expected.tobytes(), command
+
+
 def test_models_differ():
     sedan, suv = VEHICLES["sedan"], VEHICLES["suv"]
     assert sedan.mass != suv.mass and sedan.wheelbase != suv.wheelbase and sedan.track != suv.track
