@@ -132,6 +132,17 @@ def fresh_folder(path: str | Path, overwrite: bool, patterns: tuple[str, ...] = 
     return folder
 
 
+def sensor_names(text: str) -> tuple[str, ...]:
+    """argparse type: comma-separated extra sensors (depth, segmentation, range)."""
+    from mjdrive.envs.gym_env import SENSORS
+
+    names = tuple(name for name in text.split(",") if name)
+    unknown = [name for name in names if name not in SENSORS]
+    if unknown:
+        raise argparse.ArgumentTypeError(f"unknown sensor {unknown[0]!r}; sensors: {', '.join(SENSORS)}")
+    return names
+
+
 def add_live_arguments(parser: argparse.ArgumentParser) -> None:
     """--live, --live-port, --live-host: stream the log's channels to the Foxglove app while it runs."""
     parser.add_argument("--live", action="store_true",
@@ -202,7 +213,7 @@ def cmd_run(args) -> int:
     if args.live and not args.record:
         raise ValueError("--live streams the channels of the episode logs: drop --no-record")
     note(f"mjdrive run: building {args.task} ...")
-    env = make_env(domain, task, **task_kwargs)  # bad keywords are reported before the folder is looked at
+    env = make_env(domain, task, sensors=args.sensors, **task_kwargs)  # bad keywords: reported before the folder
     out = fresh_folder(args.out, args.overwrite)
     policy = make_policy(args.policy, env, args.seed)
     if args.record:  # one MCAP file per episode in OUT (see mjdrive/record/recorder.py)
@@ -263,7 +274,7 @@ def cmd_drive(args) -> int:
     if args.live and not args.record:
         raise ValueError("--live streams the channels of the episode logs: drop --no-record")
     note(f"mjdrive drive: building {args.task} ...")
-    env = make_env(domain, task, **task_kwargs)
+    env = make_env(domain, task, sensors=args.sensors, **task_kwargs)
     out = fresh_folder(args.out, args.overwrite)
     if args.record:
         from mjdrive.record import RecordEpisodes
@@ -311,11 +322,12 @@ def cmd_logs(args) -> int:
 
 def cmd_bench(args) -> int:
     from mjdrive.bench import bench_parts, run_benchmarks, run_roundabout_benchmarks
+    from mjdrive.bench_sensors import SENSOR_PARTS, run_sensor_benchmarks
     from mjdrive.progress import Progress
 
     parts = []
-    with Progress(total=bench_parts(args.tasks, args.roundabout, args.highway), desc="bench",
-                  unit="part") as bar:
+    total = bench_parts(args.tasks, args.roundabout, args.highway) + SENSOR_PARTS * len(args.sensors)
+    with Progress(total=total, desc="bench", unit="part") as bar:
         def tick(label: str) -> None:
             bar.set_postfix_str(label, refresh=False)
             bar.update()
@@ -325,6 +337,8 @@ def cmd_bench(args) -> int:
         if args.roundabout:
             parts.append(run_roundabout_benchmarks(args.roundabout, seconds=args.seconds, highway=args.highway,
                                                    tick=tick))
+        if args.sensors:
+            parts.append(run_sensor_benchmarks(args.sensors, seconds=args.seconds, tick=tick))
     report = "\n\n".join(parts)
     print(report)
     if args.out:
@@ -379,6 +393,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="log the front camera every K-th step (0: no images)")
     run.add_argument("--record-image-format", default="jpeg", choices=("jpeg", "png"),
                      help="compression of the logged camera images")
+    run.add_argument("--sensors", type=sensor_names, default=(), metavar="NAMES",
+                     help="extra observations, recorded in the logs: depth,segmentation,range (comma-separated)")
     add_live_arguments(run)
     run.set_defaults(func=cmd_run)
 
@@ -394,6 +410,8 @@ def build_parser() -> argparse.ArgumentParser:
     drive.add_argument("--overwrite", action="store_true", help="replace the run already in OUT")
     drive.add_argument("--record", action=argparse.BooleanOptionalAction, default=True,
                        help="write an MCAP log per episode into OUT")
+    drive.add_argument("--sensors", type=sensor_names, default=(), metavar="NAMES",
+                       help="extra sensors recorded in the logs: depth,segmentation,range (comma-separated)")
     add_live_arguments(drive)
     drive.set_defaults(func=cmd_drive)
 
@@ -416,6 +434,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="roundabout densities for the roundabout table (none: skip it)")
     bench.add_argument("--highway", action=argparse.BooleanOptionalAction, default=True,
                        help="also run highway-env's roundabout-v0 when it is installed")
+    bench.add_argument("--sensors", nargs="*", type=task_name, default=["roundabout/d120"], metavar="TASK",
+                       help="tasks for the extra sensors' cost table: depth, segmentation, range ring (none: skip)")
     bench.add_argument("--seconds", type=positive_float, default=3.0, help="wall time per measurement [s]")
     bench.add_argument("--image-size", type=int_at_least(16, 1024), default=128, help="camera side [px]")
     bench.add_argument("--out", default=None, help="also write the report to this file")

@@ -285,3 +285,111 @@ class CameraRenderer:
     def __del__(self) -> None:
         if _CONTEXTS is not None and id(self) in _CONTEXTS:  # dropped without close (e.g. an env not closed)
             self.close()
+
+
+# --- depth, segmentation and range: more sensors from the same renderer and model ----------------------------
+
+SEGMENT_CLASSES = ("background", "ground", "road", "marking", "building", "ego", "car", "motorcycle", "bicycle",
+                   "pedestrian", "other")  # label i of a segmentation image is SEGMENT_CLASSES[i]
+_GEOM_NAME_CLASSES = {"ground": "ground", "road_surface": "road", "road_areas": "road", "markings": "marking",
+                      "crosswalks": "marking", "give_way_lines": "marking"}
+
+
+def geom_classes(model: mujoco.MjModel, prefix: str = "ego/") -> np.ndarray:
+    """(ngeom,) uint8 SEGMENT_CLASSES index of every geom, from the world's names (`world.build_spec`)."""
+    index = {name: i for i, name in enumerate(SEGMENT_CLASSES)}
+    root = model.body(prefix + "chassis").id
+    out = np.full(model.ngeom, index["other"], np.uint8)
+    for geom in range(model.ngeom):
+        name = model.geom(geom).name or ""
+        if model.body_rootid[model.geom_bodyid[geom]] == root:
+            out[geom] = index["ego"]
+        elif name in _GEOM_NAME_CLASSES:
+            out[geom] = index[_GEOM_NAME_CLASSES[name]]
+        elif name.startswith("building_"):
+            out[geom] = index["building"]
+        elif name.startswith("traffic_"):
+            out[geom] = index.get(name.rsplit("_", 1)[-1], index["other"])
+    return out
+
+
+class DepthSegmentationCamera(CameraRenderer):
+    """A camera that also reads its depth buffer as metres and renders a segmentation image (one class per
+    pixel, SEGMENT_CLASSES), from one scene update per step. Sky and anything beyond the far clip plane read
+    as `far` [m]."""
+
+    def __init__(self, model: mujoco.MjModel, camera: str, height: int, width: int):
+        super().__init__(model, camera, height, width)
+        extent = model.stat.extent
+        self.near, self.far = model.vis.map.znear * extent, model.vis.map.zfar * extent  # [m]
+        self._depth = np.empty((height, width), np.float32)
+        self.classes = geom_classes(model)
+        self.depth_image = np.empty((height, width), np.float32)
+        self.segmentation_image = np.empty((height, width), np.uint8)
+
+    def render_sensors(self, data: mujoco.MjData, depth: bool = True, segmentation: bool = True) -> None:
+        """Fill `depth_image` (H, W) [m] and/or `segmentation_image` (H, W) class indices for `data`."""
+        if self.closed:
+            raise RuntimeError("this DepthSegmentationCamera is closed; make a new one")
+        gl, context = _CONTEXTS[id(self)]
+        self._update_scene(data)
+        self._update_scene(data)
+        gl.make_current()
+        if depth:
+            mujoco.mjr_render(self.rect, self.scene, context)
+            mujoco.mjr_readPixels(None, self._depth, self.rect, context)
+            # GL's depth in [0, 1] is hyperbolic in the distance: back to metres along the view axis
+            linear = self.near / (1.0 - self._depth * (1.0 - self.near / self.far))
+            np.copyto(self.depth_image, np.minimum(linear, self.far)[::-1])
+        if segmentation:
+            flags = self.scene.flags
+            flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = True
+            try:
+                mujoco.mjr_render(self.rect, self.scene, context)
+                mujoco.mjr_readPixels(self._pixels, None, self.rect, context)
+            finally:
+                flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = False
+            segid = (self._pixels[..., 0].astype(np.int32) + (self._pixels[..., 1].astype(np.int32) << 8)
+                     + (self._pixels[..., 2].astype(np.int32) << 16))[::-1]  # 0: nothing drawn, else segid + 1
+            n = self.scene.ngeom
+            geoms = self.scene.geoms
+            lookup = np.zeros(n + 1, np.uint8)  # scene geom (segid + 1) -> class
+            if n:
+                segids = np.array([geoms[i].segid for i in range(n)])
+                objids = np.array([geoms[i].objid for i in range(n)])
+                objtypes = np.array([geoms[i].objtype for i in range(n)])
+                is_geom = objtypes == int(mujoco.mjtObj.mjOBJ_GEOM)
+                lookup[segids[is_geom] + 1] = self.classes[objids[is_geom]]
+            np.copyto(self.segmentation_image, lookup[np.clip(segid, 0, n)])
+
+
+class RangeRing:
+    """A lidar-like ring of `rays` horizontal range readings [m] around the ego, `height` [m] above its
+    chassis origin, first ray straight ahead, counter-clockwise; `max_range` where nothing is hit. Rays
+    see geom group 0 (road users, buildings, the world), not the ego's own geoms (groups 1 and 3)."""
+
+    GEOM_GROUPS = np.array([1, 0, 0, 0, 0, 0], np.uint8)
+
+    def __init__(self, model: mujoco.MjModel, rays: int = 36, max_range: float = 50.0, height: float = 0.6,
+                 body: str = "ego/chassis"):
+        if rays < 1 or not max_range > 0:
+            raise ValueError(f"a range ring needs rays >= 1 and max_range > 0, got {rays} and {max_range}")
+        self.model, self.body = model, model.body(body).id
+        self.rays, self.max_range, self.height = rays, float(max_range), float(height)
+        self.angles = 2 * np.pi * np.arange(rays) / rays  # [rad] in the ego frame
+        self._geomid = np.zeros(rays, np.int32)
+        self._dist = np.zeros(rays, np.float64)
+        self.ranges = np.zeros(rays, np.float32)
+
+    def __call__(self, data: mujoco.MjData) -> np.ndarray:
+        """(rays,) ranges [m] (the reused buffer: copy it to keep it)."""
+        origin = data.xpos[self.body] + np.array([0.0, 0.0, self.height])
+        xmat = data.xmat[self.body]
+        yaw = np.arctan2(xmat[3], xmat[0])
+        directions = np.zeros((self.rays, 3))
+        directions[:, 0], directions[:, 1] = np.cos(yaw + self.angles), np.sin(yaw + self.angles)
+        mujoco.mj_multiRay(self.model, data, origin, directions.ravel(), self.GEOM_GROUPS, 1, self.body,
+                           self._geomid, self._dist, None, self.rays, self.max_range)
+        hit = (self._geomid >= 0) & (self._dist >= 0) & (self._dist <= self.max_range)
+        np.copyto(self.ranges, np.where(hit, self._dist, self.max_range))
+        return self.ranges

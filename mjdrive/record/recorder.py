@@ -24,6 +24,9 @@ Topics (log times: the episode's wall-clock start + simulated time, so plots sta
 | /reward | JSON mjdrive.Reward | every step: reward, return, `task.reward_terms` |
 | /physics | protobuf mjdrive.PhysicsState | every step: time, qpos, qvel, act, mocap (exact, for replay) |
 | /episode | JSON mjdrive.EpisodeSummary | once at the end: `task.info` + steps, return, speeds |
+| /sensors/depth | foxglove.RawImage 32FC1 | every step of an env with the `depth` sensor (`sensors=`): [m] |
+| /sensors/segmentation | foxglove.RawImage mono8 | every step with `segmentation`: class index x SEGMENT_SCALE |
+| /sensors/range | foxglove.LaserScan | every step with `range`: the ring's ranges [m], frame ego, first ray ahead |
 
 /tf, /ego/state, /physics and /scene/road_users also carry the state right after reset (step 0), so they
 hold steps + 1 messages; /action and /reward hold one per step. MCAP metadata "mjdrive" (written first)
@@ -214,6 +217,19 @@ class _ResendSceneOnSubscribe(foxglove.ServerListener):
             self.due.set()
 
 
+SEGMENT_SCALE = 20  # segmentation pixels are logged as class index x SEGMENT_SCALE (visible in an Image panel)
+
+
+class _SensorChannels:
+    """Channels of the extra sensors, made on first use (a log without them has none)."""
+
+    def __init__(self, context: foxglove.Context):
+        ch = foxglove.channels
+        self.depth = ch.RawImageChannel("/sensors/depth", context=context)
+        self.segmentation = ch.RawImageChannel("/sensors/segmentation", context=context)
+        self.range = ch.LaserScanChannel("/sensors/range", context=context)
+
+
 def _ns(seconds: float) -> int:
     return int(round(seconds * 1e9))
 
@@ -254,6 +270,7 @@ class EpisodeRecorder:
         compression = {"zstd": MCAPCompression.Zstd, "lz4": MCAPCompression.Lz4, None: None}[self.options.compression]
         self._write_options = MCAPWriteOptions(compression=compression, chunk_size=self.options.chunk_size,
                                                profile="", compression_threads=0)
+        self._sensor_channels: _SensorChannels | None = None
         self.server = None  # Foxglove WebSocket server streaming this recorder's channels (options.live_port)
         self._scene_due = threading.Event()
         if self.options.live_port is not None:
@@ -367,9 +384,10 @@ class EpisodeRecorder:
         self._channels.ego.log(fm.SceneUpdate(entities=[ego]), log_time=ns)
 
     def step(self, task, physics, action, reward: float, *, terminated: bool = False,
-             truncated: bool = False) -> Path | None:
-        """Log one env step (the action applied, its reward, the state after it). Ends the episode when
-        `terminated` or `truncated`, returning the finished file's path; else None."""
+             truncated: bool = False, sensors: dict[str, np.ndarray] | None = None) -> Path | None:
+        """Log one env step (the action applied, its reward, the state after it, the extra `sensors`
+        readings: depth, segmentation, range). Ends the episode when `terminated` or `truncated`, returning the
+        finished file's path; else None."""
         if self._writer is None:
             raise RuntimeError("EpisodeRecorder.step before begin()")
         data = physics.data.ptr
@@ -388,6 +406,8 @@ class EpisodeRecorder:
             self._scene_due.clear()
             self._log_scene(task, ns)
         self._log_state(task, data, c, (a0, a1, a2), ns)
+        if sensors:
+            self._log_sensors(sensors, ns)
         if terminated or truncated:
             return self.end(terminated=terminated, truncated=truncated, task=task)
         return None
@@ -446,6 +466,26 @@ class EpisodeRecorder:
                 c["P"] = [f, 0.0, w / 2, 0.0, 0.0, f, h / 2, 0.0, 0.0, 0.0, 1.0, 0.0]
             self._model_cache = (model, c)
         return self._model_cache[1]
+
+    def _log_sensors(self, sensors: dict[str, np.ndarray], ns: int) -> None:
+        if self._sensor_channels is None:
+            self._sensor_channels = _SensorChannels(self._context)
+        ch, stamp = self._sensor_channels, _timestamp(ns)
+        if "depth" in sensors:
+            depth = np.ascontiguousarray(sensors["depth"], np.float32)
+            ch.depth.log(fm.RawImage(timestamp=stamp, frame_id=CAMERA_FRAME, width=depth.shape[1],
+                                     height=depth.shape[0], encoding="32FC1", step=4 * depth.shape[1],
+                                     data=depth.tobytes()), log_time=ns)
+        if "segmentation" in sensors:
+            labels = (np.asarray(sensors["segmentation"], np.uint8) * SEGMENT_SCALE).astype(np.uint8)
+            ch.segmentation.log(fm.RawImage(timestamp=stamp, frame_id=CAMERA_FRAME, width=labels.shape[1],
+                                            height=labels.shape[0], encoding="mono8", step=labels.shape[1],
+                                            data=labels.tobytes()), log_time=ns)
+        if "range" in sensors:
+            ranges = np.asarray(sensors["range"], np.float64)
+            ch.range.log(fm.LaserScan(timestamp=stamp, frame_id=scene.EGO, start_angle=0.0,
+                                      end_angle=float(2 * np.pi * (len(ranges) - 1) / len(ranges)),
+                                      ranges=ranges.tolist()), log_time=ns)
 
     def _road_bytes(self, road_map) -> bytes:
         if self._road_cache is None or self._road_cache[0] is not road_map:

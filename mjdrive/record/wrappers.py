@@ -47,8 +47,10 @@ class RecordEpisodes(gym.Wrapper):
         observation, reward, terminated, truncated, info = self.env.step(action)
         base = self.env.unwrapped
         if self.recorder.recording:
+            sensors = {k: observation[k] for k in ("depth", "segmentation", "range")
+                       if isinstance(observation, dict) and k in observation}
             path = self.recorder.step(base.task, base.dm_env.physics, base.task.last_action, reward,
-                                      terminated=terminated, truncated=truncated)
+                                      terminated=terminated, truncated=truncated, sensors=sensors)
             if path is not None:
                 info = {**info, "record_path": str(path)}
         return observation, reward, terminated, truncated, info
