@@ -378,6 +378,25 @@ def test_collision_sensor_catches_a_bump_that_bounces_off_within_a_control_step(
     assert model.geom(sensor.last_other_geom).name == "wall"
 
 
+@pytest.mark.parametrize("dt", DTS)
+@pytest.mark.parametrize("name", ["waypoints/straight", "roundabout/d120"])
+def test_tasks_sample_contacts_every_20ms_whatever_the_step(name, dt):
+    """The collision sensor samples every 0.02 s of physics (the bounce above) at any physics step: 5 samples
+    per 0.1 s waypoints step, 10 per 0.2 s roundabout step."""
+    from mjdrive import suite
+
+    domain, task = name.split("/")
+    env = suite.load(domain, task, {"random": 0, "physics_dt": dt})
+    env.reset()
+    samples = []
+    sample = env.task.collision_sensor.sample
+    env.task.collision_sensor.sample = lambda data: (samples.append(data.time), sample(data))
+    env.step(np.array([0.3, 0.0, 0.0]))
+    np.testing.assert_allclose(np.diff(samples), 0.02, atol=1e-9)
+    assert len(samples) == round(env.control_timestep() / 0.02)
+    env.close()
+
+
 def test_default_step_drives_like_2ms():
     """The default physics step changes none of the car's figures beyond the measured spread
     (results/physics_dt.md): braking distance within 1%, 0-50 km/h within 0.05 s, circle radius within 0.1%."""

@@ -28,6 +28,7 @@ ACTION_SPEC = specs.BoundedArray(
 
 OBSERVATIONS = ("features", "camera")
 MAX_SEED = 2**32 - 1  # numpy RandomState seeds are 32-bit
+CONTACT_SAMPLE_PERIOD = 0.02  # [s] the ego's contacts are sampled this often, whatever the physics step
 
 
 @dataclass(frozen=True)
@@ -174,10 +175,17 @@ class DrivingTask(control.Task):
         return footprint(x, y, yaw, self.params.length, self.params.width)
 
     def reset_safety_sensors(self, physics: Physics) -> None:
-        """Reset the sensors and sample contacts between physics chunks (`substep`) from now on."""
+        """Reset the sensors and sample contacts between physics chunks (`substep`, every `substep_period()`
+        seconds of physics: the chunk is the nearest whole number of physics steps) from now on."""
         self.lane_invasion_sensor.reset(self.ego_corners(physics))
         self.collision_sensor.reset()
+        physics.substep_interval = max(1, int(round(self.substep_period() / physics.timestep())))
         physics.substep_callback = self.substep
+
+    def substep_period(self) -> float:
+        """[s] of physics between `substep` calls: CONTACT_SAMPLE_PERIOD (tasks that move things between
+        chunks may set their own)."""
+        return CONTACT_SAMPLE_PERIOD
 
     def substep(self, physics: Physics, dt: float) -> None:
         """Physics.substep_callback (every `substep_interval` physics steps): sample the ego's contacts.

@@ -229,7 +229,6 @@ class RoundaboutTask(DrivingTask):
         self.vehicle.reset(physics.raw_data, x, y, float(self.route_lane.heading(start_s)))
         self.route_frame(np.array([[x, y]]), full=True)
         self._frame_time = -1.0
-        physics.substep_interval = max(1, int(round(self.traffic.config.substep / physics.timestep())))
         self._ego_fn = functools.partial(self.ego_state, physics)
         rng = np.random.default_rng(self.random.randint(2**31))
         self.traffic.reset(rng, self.ego_state(physics), warmup=self.warmup)
@@ -246,6 +245,10 @@ class RoundaboutTask(DrivingTask):
         }
         self._step_reward = 0.0
         self.reward_terms = {}
+
+    def substep_period(self) -> float:
+        """[s] between substeps: the traffic's pose period (mocap poses written and contacts sampled)."""
+        return self.traffic.config.substep
 
     def substep(self, physics: Physics, dt: float) -> None:
         """Physics.substep_callback: sample the ego's contacts, then move the traffic (its mocap poses)."""
