@@ -92,6 +92,14 @@ def _split_task(name: str) -> tuple[str, str]:
     return domain, task
 
 
+def _check_kwargs(domain: str, task: str, task_kwargs: dict) -> None:
+    """Validate task keywords before anything is built or printed (a mistake gives its one-line error)."""
+    from mjdrive import suite
+
+    config_class, defaults = suite.task_config(domain, task)
+    config_class.from_dict(task_kwargs, defaults, where=f"{domain}/{task}")
+
+
 def _parse_kwargs(pairs: list[str]) -> dict:
     """KEY=VALUE pairs, VALUE parsed as JSON when it parses (numbers, booleans, lists, null), else a string."""
     out = {}
@@ -212,6 +220,7 @@ def cmd_run(args) -> int:
     task_kwargs = _parse_kwargs(args.task_kwarg)
     if args.live and not args.record:
         raise ValueError("--live streams the channels of the episode logs: drop --no-record")
+    _check_kwargs(domain, task, task_kwargs)
     note(f"mjdrive run: building {args.task} ...")
     env = make_env(domain, task, sensors=args.sensors, **task_kwargs)  # bad keywords: reported before the folder
     out = fresh_folder(args.out, args.overwrite)
@@ -273,6 +282,7 @@ def cmd_drive(args) -> int:
     task_kwargs = _parse_kwargs(args.task_kwarg)
     if args.live and not args.record:
         raise ValueError("--live streams the channels of the episode logs: drop --no-record")
+    _check_kwargs(domain, task, task_kwargs)
     note(f"mjdrive drive: building {args.task} ...")
     env = make_env(domain, task, sensors=args.sensors, **task_kwargs)
     out = fresh_folder(args.out, args.overwrite)
@@ -297,10 +307,8 @@ def cmd_drive(args) -> int:
 
 
 def cmd_replay(args) -> int:
-    from mjdrive.progress import note
     from mjdrive.record.replay import replay
 
-    note(f"mjdrive replay: reading {args.file} and rebuilding its env ...")
     result = replay(args.file, video=args.video, progress=True)
     print(result.report())
     return 0 if result.match else 1

@@ -84,6 +84,10 @@ def replay(path: str | Path, video: str | Path | None = None, progress: bool = F
     rewards = [r["reward"] for r in episode.json("/reward")]
     steps = min(len(actions), len(rewards), len(physics_log["time"]) - 1)
 
+    if progress:
+        from mjdrive.progress import note
+
+        note(f"replay: rebuilding {meta['domain']}/{meta['task_name']} for {steps} steps ...")
     env = DrivingGymEnv(meta["domain"], meta["task_name"], replay_task_kwargs(meta), meta.get("environment_kwargs"))
     try:
         if meta.get("rng_state") is not None:
