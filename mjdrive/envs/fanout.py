@@ -112,11 +112,17 @@ def _terminate(pool: ProcessPoolExecutor) -> None:
         process.join(timeout=5)
 
 
+def _pinned_call(function: Callable[[Any, int], T], spec: Any, index: int) -> T:
+    """A Ray task: one compute thread in its worker process (before the job builds an env or runs torch)."""
+    pin_threads()
+    return function(spec, index)
+
+
 def _fan_out_ray(function, spec, indices, workers, address, on_result, max_restarts) -> dict:
     ray = ray_module()
     owns = ray_connect(address, num_cpus=workers or None)
     try:
-        remote = ray.remote(num_cpus=1, max_retries=max_restarts)(function)
+        remote = ray.remote(num_cpus=1, max_retries=max_restarts)(_pinned_call)
         in_flight = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
         spec_ref = ray.put(spec)
         queue, refs, results = list(indices), {}, {}
@@ -124,7 +130,7 @@ def _fan_out_ray(function, spec, indices, workers, address, on_result, max_resta
             while queue or refs:
                 while queue and len(refs) < in_flight:
                     index = queue.pop(0)
-                    refs[remote.remote(spec_ref, index)] = index
+                    refs[remote.remote(function, spec_ref, index)] = index
                 done, _ = ray.wait(list(refs), num_returns=1)
                 for ref in done:
                     index = refs.pop(ref)
