@@ -50,15 +50,18 @@ def bench_eval(checkpoint: Path, episodes: int, seed: int) -> dict[int, dict]:
     """{workers: {steps_per_s, wall_s, steps}} for the same episodes; raises if the rows differ."""
     out, reference = {}, None
     for workers in WORKERS:
+        arrivals: list[float] = []
         start = time.perf_counter()
-        result = evaluate(checkpoint, episodes=episodes, seed=seed, workers=workers)
+        result = evaluate(checkpoint, episodes=episodes, seed=seed, workers=workers,
+                          on_episode=lambda row, arrivals=arrivals: arrivals.append(time.perf_counter()))
         wall = time.perf_counter() - start
         steps = sum(row["steps"] for row in result["rows"])
         if reference is None:
             reference = result["rows"]
         elif result["rows"] != reference:
             raise RuntimeError(f"{checkpoint.name}: rows at {workers} workers differ from in process")
-        out[workers] = {"steps_per_s": steps / wall, "wall_s": wall, "steps": steps}
+        out[workers] = {"steps_per_s": steps / wall, "wall_s": wall, "steps": steps,
+                        "first_s": arrivals[0] - start}  # start-up (policy, env, workers) + one episode
         print(f"eval {checkpoint.name} workers={workers}: {steps} steps in {wall:.1f} s ({steps / wall:.1f}/s), "
               f"load {load()}", flush=True)
     return out
@@ -124,13 +127,14 @@ def report(evals: dict, trains: dict, args: argparse.Namespace, load_before: str
         "first row).",
         "",
         "| observation | checkpoint | steps | in process | 1 worker | 2 workers | 2 workers / 1 worker "
-        "| 1 worker / in process |",
-        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |",
+        "| 1 worker / in process | first episode back [s]: in process, 1, 2 workers |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | --- |",
     ]
     for obs, (checkpoint, result) in evals.items():
         r = {w: result[w]["steps_per_s"] for w in WORKERS}
         lines.append(f"| {obs} | `{checkpoint.name}` | {result[0]['steps']} | {r[0]:.1f} | {r[1]:.1f} | {r[2]:.1f} "
-                     f"| **{ratio(r[2], r[1])}** | {ratio(r[1], r[0])} |")
+                     f"| **{ratio(r[2], r[1])}** | {ratio(r[1], r[0])} | "
+                     + ", ".join(f"{result[w]['first_s']:.1f}" for w in WORKERS) + " |")
     lines += [
         "",
         "## Training collection (`mjdrive train --workers N`)",
