@@ -23,7 +23,7 @@ scalars. Learners read only the observation arrays, rewards, flags and `final_ob
 
 A worker that dies (killed, out of memory) raises `WorkerDied` at the next step, after the other workers have
 been stopped; a training run cannot go on without it (its copies' state is lost), so there is no restart here.
-Evaluation, whose episodes are independent, reruns them elsewhere (`agents.evaluate`).
+Evaluation, whose episodes are independent, reruns them elsewhere (`mjdrive.envs.fanout`).
 """
 
 from __future__ import annotations
