@@ -315,14 +315,15 @@ def cmd_replay(args) -> int:
 
 
 def cmd_logs(args) -> int:
-    from mjdrive.record.reader import logs_document, logs_table
+    from mjdrive.record.reader import logs_document, logs_rows, logs_table
 
     if not any(Path(args.folder).glob("*.mcap*")):
         raise ValueError(f"no .mcap logs in {args.folder}")
-    table = logs_table(args.folder)
+    read = logs_rows(args.folder, progress=True)
+    table = logs_table(args.folder, read)
     print(table)
     if args.out and Path(args.out).suffix == ".json":
-        Path(args.out).write_text(json.dumps(logs_document(args.folder), indent=2) + "\n")
+        Path(args.out).write_text(json.dumps(logs_document(args.folder, read), indent=2) + "\n")
     elif args.out:
         Path(args.out).write_text(table + "\n")
     return 0
@@ -356,15 +357,21 @@ def cmd_bench(args) -> int:
 
 
 def cmd_train(args) -> int:
-    from agents.train import train_command  # needs the `learn` extra (torch, rsl-rl)
+    from mjdrive.progress import Starting
 
-    return train_command(args)
+    with Starting("mjdrive train: loading torch, the config and the envs"):
+        from agents.train import train_command  # needs the `learn` extra (torch, rsl-rl)
+
+        return train_command(args)
 
 
 def cmd_eval(args) -> int:
-    from agents.evaluate import eval_command
+    from mjdrive.progress import Starting
 
-    return eval_command(args)
+    with Starting("mjdrive eval: loading torch, the checkpoint and the env"):
+        from agents.evaluate import eval_command
+
+        return eval_command(args)
 
 
 def cmd_ensemble(args) -> int:

@@ -34,6 +34,10 @@ class Progress(tqdm):
     Use as tqdm: `with Progress(total=n, desc="...", unit="step") as bar: ... bar.update()`."""
 
     def __init__(self, iterable: Any = None, *, plain: bool | None = None, file: IO[str] | None = None, **kwargs):
+        global _STARTING
+        if _STARTING is not None and not isinstance(self, Starting):  # the command's real progress begins
+            _STARTING.close()
+            _STARTING = None
         file = sys.stderr if file is None else file
         self.plain = not is_terminal(file) if plain is None else plain
         if self.plain:
@@ -54,6 +58,8 @@ class Progress(tqdm):
     def _beat(self) -> None:
         interval = PLAIN_INTERVAL if self.plain else TERMINAL_REFRESH
         while not self._stop.wait(HEARTBEAT):
+            if time.time() - self.start_t < self.delay:
+                continue
             if time.time() - self.last_print_t >= interval:
                 self.refresh()
 
@@ -76,6 +82,26 @@ class Progress(tqdm):
             self._heartbeat.join()
         if self.plain and not self.disable and self.n != self.last_print_n:
             self.refresh()  # the final count, once
+        super().close()
+
+
+_STARTING: Progress | None = None  # the open `Starting` status, closed by the next Progress
+
+
+class Starting(Progress):
+    """'COMMAND: starting [elapsed]' while a command loads (torch, a checkpoint, its envs), shown only when
+    that takes more than `delay` s (so a quick one-line error stays one line) and gone as soon as the
+    command's own progress bar starts or the command ends."""
+
+    def __init__(self, desc: str, delay: float = 1.0, **kwargs):
+        global _STARTING
+        super().__init__(desc=desc, bar_format="{desc} [{elapsed}]", delay=delay, leave=False, **kwargs)
+        _STARTING = self
+
+    def close(self) -> None:
+        global _STARTING
+        if _STARTING is self:
+            _STARTING = None
         super().close()
 
 

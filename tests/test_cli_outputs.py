@@ -47,6 +47,22 @@ def test_progress_writes_plain_lines_with_a_total_and_keeps_talking_during_a_lon
     assert sum("1/3" in line for line in lines) >= 2, lines  # the heartbeat spoke during the long step
 
 
+def test_a_slow_start_is_announced_and_a_quick_one_is_not():
+    from mjdrive import progress
+
+    quick = io.StringIO()
+    with progress.Starting("cmd: loading", delay=0.5, file=quick):
+        pass  # a quick error or a quick command: nothing said
+    assert quick.getvalue() == ""
+    slow = io.StringIO()
+    starting = progress.Starting("cmd: loading", delay=0.3, file=slow)
+    time.sleep(0.3 + PLAIN_INTERVAL + 0.3)
+    assert slow.getvalue().startswith("cmd: loading [00:0")
+    with Progress(total=1, desc="work", file=io.StringIO()) as bar:  # the real progress takes over
+        assert starting.disable or progress._STARTING is None
+        bar.update()
+
+
 def test_progress_on_a_terminal_redraws_in_place():
     stream = io.StringIO()
     with Progress(total=2, desc="work", file=stream, plain=False) as bar:

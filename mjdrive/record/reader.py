@@ -150,17 +150,19 @@ def _fmt(value: Any, digits: int = 2) -> str:
     return str(value)
 
 
-def logs_rows(folder: str | Path) -> tuple[list[dict], list[str], list[str], list[str]]:
+def logs_rows(folder: str | Path, progress: bool = False) -> tuple[list[dict], list[str], list[str], list[str]]:
     """(schema rows of the complete episodes in `folder`, their task names, one table row per damaged or
     unreadable file, one line per problem). Rows follow `mjdrive.record.summary.ROW_FIELDS`, as run's and
-    eval's do."""
+    eval's do. `progress`: a bar over the files on stderr."""
+    from mjdrive.progress import Progress
     from mjdrive.record.summary import episode_row, roundabout_arms
 
     rows: list[dict] = []
     tasks: list[str] = []
     problems: list[str] = []
     damaged: list[str] = []
-    for path in episode_files(folder):
+    files = episode_files(folder)
+    for path in Progress(files, desc="reading logs", unit="file", disable=not progress, delay=1.0):
         try:
             episode = read_episode(path, topics={"/action", "/physics"})
         except EpisodeFileError as error:
@@ -184,21 +186,22 @@ def logs_rows(folder: str | Path) -> tuple[list[dict], list[str], list[str], lis
     return rows, tasks, damaged, problems
 
 
-def logs_document(folder: str | Path) -> dict[str, Any]:
-    """`mjdrive logs --out FILE.json`: the folder's episodes in the summary schema of run and eval."""
+def logs_document(folder: str | Path, rows_of_folder: tuple | None = None) -> dict[str, Any]:
+    """`mjdrive logs --out FILE.json`: the folder's episodes in the summary schema of run and eval
+    (`rows_of_folder`: `logs_rows(folder)` if already read)."""
     from mjdrive.record.summary import document
 
-    rows, tasks, _, problems = logs_rows(folder)
+    rows, tasks, _, problems = rows_of_folder or logs_rows(folder)
     return document("logs", " + ".join(dict.fromkeys(tasks)), {}, "-", rows, folder=str(folder),
                     problems=problems)
 
 
-def logs_table(folder: str | Path) -> str:
+def logs_table(folder: str | Path, rows_of_folder: tuple | None = None) -> str:
     """A markdown table of the episodes in `folder` (one row per complete file, in the summary schema of
-    run and eval), their means, and the damaged files."""
+    run and eval), their means, and the damaged files (`rows_of_folder`: `logs_rows(folder)` if already read)."""
     from mjdrive.record.summary import summarize
 
-    rows, tasks, damaged, problems = logs_rows(folder)
+    rows, tasks, damaged, problems = rows_of_folder or logs_rows(folder)
     lines = [
         f"# Episodes in {folder}", "",
         "| file | task | seed | steps | reward | success | collision | time [s] | mean speed [m/s] | exit | end |",
