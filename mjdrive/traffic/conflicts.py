@@ -33,7 +33,9 @@ STOP_SEARCH = 15.0  # [m] how far back the stop line may move
 COMMITTED = 0.5  # [m] past the stop line: the vehicle goes on (it could not stop before the zone)
 EDGE_MARGIN = 0.5  # [m] before an occupied zone
 MERGE_RANGE = 60.0  # [m] agents farther from a merge point than this do not take part in the zipper
-CLEAR_ACCEL = 1.5  # [m/s^2] a yielding vehicle's acceleration through the zone, for its time to clear it
+CLEAR_ACCEL = 2.0  # [m/s^2] a yielding vehicle's acceleration through the zone, for its time to clear it
+HELD_SPEED = 1.0  # [m/s] a vehicle slower than this within HELD_DISTANCE of its give-way line is waiting there
+HELD_DISTANCE = 5.0  # [m]
 
 
 @dataclass(frozen=True)
@@ -176,10 +178,32 @@ def conflict_columns(t: Traffic, ctx: dict, f: dict) -> tuple[np.ndarray, np.nda
     to_clear = table.s_out[None] + length_me - front_own[rows]
     to_clear = np.where(np.isfinite(to_clear), np.maximum(to_clear, 0.0), 0.0)
     t_clear = (np.sqrt(v_me**2 + 2 * CLEAR_ACCEL * to_clear) - v_me) / CLEAR_ACCEL  # (F, R) [s]
-    soon = (others & (ttz[None] < (t_clear + cfg.critical_gap_crossing)[:, None, :])).any(axis=1)  # (F, R)
-    occupied = (others & inside[None]).any(axis=1)
-    my_ttz = np.maximum(table.s_in[None] - front_own[rows], 0.0) / np.maximum(v_me, cfg.merge_speed)
-    first = (others & (ttz[None] < my_ttz[:, None, :])).any(axis=1)  # another agent gets there first
+    # A priority agent stopped at its own give-way line before the zone waits too (it will see the
+    # follower committed): no conflict.
+    held = (v[:, None] < HELD_SPEED) & (front_o <= table.other_stop[None] + COMMITTED) & (
+        table.other_stop[None] - front_o < HELD_DISTANCE)  # (A, R)
+    # Impatience: the critical gap shrinks to half over `impatience` seconds of waiting.
+    waited = np.append(t.stopped_time, 0.0)[np.minimum(rows, t.nv)]  # (F,) [s] (the ego: never)
+    critical = cfg.critical_gap_crossing * np.maximum(0.5, 1.0 - 0.5 * waited / cfg.impatience)[:, None]
+    soon = (others & ~held[None] & (ttz[None] < (t_clear + critical)[:, None, :])).any(axis=1)
+    # Occupied: someone from the other lane is committed to the zone (past its give-way line) or in it. A
+    # vehicle not yet committed waits at its give-way line for either; a committed one stops at the zone's
+    # edge only for a vehicle physically in it (committed vehicles never wait for each other's promises,
+    # which could go round in a circle).
+    in_zone = inside & (front_o > table.o_in[None])  # (A, R) physically in it
+    promised = (others & inside[None]).any(axis=1)  # (F, R)
+    occupied = (others & in_zone[None]).any(axis=1)
+    # Ties: whoever reaches its give-way line sooner goes first (then the lower row): a strict order, so
+    # waiting never goes round in a circle.
+    pace = np.maximum(v, cfg.merge_speed)
+    t_line = np.maximum(table.stop[None] - front_own, 0.0) / pace[:, None]  # (A, R) [s] along own lane
+    t_line_o = np.maximum(table.other_stop[None] - front_o, 0.0) / pace[:, None]  # (A, R) along the other
+    waiting_o = np.isfinite(front_o) & ~inside & (front_o <= table.o_in[None]) & ~np.isfinite(
+        offset[:, table.lane])
+    agent = np.arange(len(s))
+    earlier = (t_line_o[None] < t_line[rows][:, None, :]) | (
+        (t_line_o[None] == t_line[rows][:, None, :]) & (agent[None, :, None] < rows[:, None, None]))
+    first = (others & waiting_o[None] & earlier).any(axis=1)  # another agent goes first
     wait_timed = timed & ((table.yields[None] & soon) | (table.tie[None] & first))
 
     # --- merges: committed agents ahead are virtual leaders; outside junctions, a zipper ------------------
@@ -210,7 +234,7 @@ def conflict_columns(t: Traffic, ctx: dict, f: dict) -> tuple[np.ndarray, np.nda
     holding = (stop > -COMMITTED) & np.isfinite(stop)  # not yet committed
     edge = table.s_in[None] - EDGE_MARGIN - front_own[rows]  # (F, R) [m] to the zone's edge
     before_edge = (edge > -COMMITTED) & np.isfinite(edge)
-    stops = np.minimum(np.where((wait_timed | wait_merge) & holding, stop, np.inf),
+    stops = np.minimum(np.where((wait_timed | wait_merge | (timed & promised)) & holding, stop, np.inf),
                        np.where(timed & occupied & before_edge, edge, np.inf))
     to_line = np.where(gives_way & holding, stop, np.inf).min(axis=1) if len(table) else np.full(n_f, np.inf)
     gap = np.concatenate([stops, leader_gap], axis=1)

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mjdrive.traffic.conflicts import conflict_columns, courteous_agents
+from mjdrive.traffic.lane_changes import ending_lanes
 from mjdrive.traffic.merges import merge_conflicts
 from mjdrive.traffic.pedestrians import occupied_crossings
 
@@ -108,6 +109,14 @@ def accelerations(t: Traffic, f: dict, ctx: dict) -> np.ndarray:
         gap = np.concatenate([gap, extra_gap], axis=1)
         lead = np.concatenate([lead, extra_lead], axis=1)
         s0 = np.concatenate([s0, extra_s0])
+    if t.urban:  # the end of an ending lane (an on-ramp) is a wall until the vehicle has moved over
+        k_end = (path >= 0).sum(axis=1) - 1  # the last lane of the planned path
+        last = path[np.arange(len(s)), np.maximum(k_end, 0)]
+        ends = ending_lanes(t)[np.maximum(last, 0)] & (last >= 0)
+        to_end = offset[np.arange(len(s)), np.maximum(last, 0)] + m.length[np.maximum(last, 0)] - front
+        gap = np.concatenate([gap, np.where(ends, to_end, np.inf)[:, None]], axis=1)
+        lead = np.concatenate([lead, np.zeros((len(s), 1))], axis=1)
+        s0 = np.concatenate([s0, [cfg.stop_gap]])
 
     finite = gap < np.inf
     t.lead_gap = gap.min(axis=1) if len(rows) == t.nv else t.lead_gap

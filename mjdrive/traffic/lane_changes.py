@@ -60,10 +60,14 @@ def _intended(t: Traffic, right: np.ndarray, left: np.ndarray, near_merge: np.nd
     least `signal_time` tries (row, side), or None."""
     cfg = t.config
     wish = t.intention[:, LANE_CHANGE]
-    target = np.where(wish == LEFT, left, np.where(wish == RIGHT, right, -1))
     lane0 = np.maximum(t.path[:, 0], 0)
+    # A lane that ends beside a neighbour (an on-ramp) must be left, whatever the intention.
+    ending = ending_lanes(t)[lane0]
+    goes_on = (left >= 0) & (t.map.n_successors[np.maximum(left, 0)] > 0)
+    wish = np.where(ending, np.where(goes_on, LEFT, RIGHT), wish)
+    target = np.where(wish == LEFT, left, np.where(wish == RIGHT, right, -1))
     # Never into a lane of lower rank (an acceleration lane that must give way at its end).
-    target = np.where(t.roles.priority[np.maximum(target, 0)] >= t.roles.priority[lane0], target, -1)
+    target = np.where(ending | (t.roles.priority[np.maximum(target, 0)] >= t.roles.priority[lane0]), target, -1)
     able = t.active & (target >= 0) & (t.lc_dist >= cfg.lane_change_length) & (t.s > 1.0) & ~near_merge
     t.lc_signal = np.where(able & (t.lc_signal < 0), t.time, np.where(able | t.lc_changing, t.lc_signal, -1.0))
     ready = able & (t.lc_signal >= 0) & (t.time - t.lc_signal >= cfg.signal_time - 1e-9)
@@ -71,6 +75,14 @@ def _intended(t: Traffic, right: np.ndarray, left: np.ndarray, near_merge: np.nd
         return None
     row = int(np.flatnonzero(ready)[np.argmin(t.lc_signal[ready])])
     return row, (0 if wish[row] == RIGHT else 1)
+
+
+def ending_lanes(t: Traffic) -> np.ndarray:
+    """(L,) lanes without successors beside a same-direction neighbour that goes on (an on-ramp; not the
+    lanes of a road leaving the map, which all end)."""
+    m = t.map
+    goes_on = lambda lane: (lane >= 0) & (m.n_successors[np.maximum(lane, 0)] > 0)  # noqa: E731
+    return (m.n_successors == 0) & (goes_on(m.left) | goes_on(m.right))
 
 
 def _finish_intended(t: Traffic) -> None:

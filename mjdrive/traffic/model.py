@@ -60,7 +60,7 @@ from mjdrive.traffic.params import (
     TrafficConfig,
 )
 from mjdrive.traffic.pedestrians import commit_pedestrians, pedestrian_poses, pedestrian_starts
-from mjdrive.traffic.spawning import activate, spawn
+from mjdrive.traffic.spawning import SpawnPoints, activate, spawn
 
 
 @dataclass
@@ -79,7 +79,8 @@ class Traffic:
     left the map and wait to respawn)."""
 
     def __init__(self, road_map: RoadMap | TrafficMap, kinds: Sequence[str],
-                 config: TrafficConfig | None = None, conflicts: ConflictZones | None = None):
+                 config: TrafficConfig | None = None, conflicts: ConflictZones | None = None,
+                 spawn_points: SpawnPoints | None = None):
         """`conflicts` (the map's conflict-zone table, `roads.conflict_zones`) switches on the urban rules:
         right of way at every crossing and merge of the table, intentions, intention-driven lane changes
         with a signalling phase; without it, entries yield at merges by gap acceptance (the roundabout)."""
@@ -91,6 +92,7 @@ class Traffic:
         self.approaches = (ApproachTable.from_zones(conflicts, self.map.road_map, self.roles.ring) if self.urban
                            else None)
         self.ego_exit = -1  # the ego's ring exit lane (roundabout intentions), see `set_ego_route`
+        self.spawn_points = spawn_points
         self.kinds = tuple(kinds)
         unknown = set(self.kinds) - set(ROAD_USER_TYPES)
         if unknown:
@@ -192,6 +194,7 @@ class Traffic:
         self.ring_passed = np.zeros(nv, dtype=bool)  # planned path went past the ego's exit
         self.lc_signal = np.full(nv, -1.0)  # [s] time the lane-change signal came on (-1: off)
         self.lc_changing = np.zeros(nv, dtype=bool)  # an intended lane change under way
+        self.stopped_time = np.zeros(nv)  # [s] since the vehicle last moved (at decisions)
         self.time = 0.0  # [s]
         self._plan: _Plan | None = None
         self._k = 0  # index of the current substep in the plan
@@ -374,6 +377,9 @@ class Traffic:
     def _decide(self) -> None:
         """New accelerations, lane changes, spawns and pedestrian starts; then the plan of poses."""
         self._obstacle_cache = None
+        if self.urban:
+            self.stopped_time = np.where(self.active & (self.v < 0.1), self.stopped_time + self.config.decision_period,
+                                         0.0)
         self._advance_lanes()
         if spawn(self):
             self._refresh_vehicle_poses()

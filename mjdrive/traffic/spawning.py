@@ -2,39 +2,66 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mjdrive.traffic.intentions import draw
+from mjdrive.traffic.intentions import LANE_CHANGE, draw
 
 if TYPE_CHECKING:
     from mjdrive.traffic.model import Traffic
 
 
+@dataclass(frozen=True)
+class SpawnPoints:
+    """Where vehicles (re)enter besides the map's sources (a scenario's critical points, §5.3): lane, s [m],
+    the range of their maximum speed [m/s] and a lane-change intention (-1: drawn as usual)."""
+
+    lane: np.ndarray  # (P,) int
+    s: np.ndarray  # (P,) [m]
+    speed: np.ndarray  # (P, 2) [m/s]
+    lane_change: np.ndarray  # (P,) int
+
+
 def spawn(t: Traffic) -> bool:
-    """Inactive vehicles re-enter at a random clear source (at most one per source per decision)."""
+    """Inactive vehicles re-enter at a random clear source or spawn point (at most one per place per
+    decision)."""
     m, cfg = t.map, t.config
-    if t.active.all() or not len(m.sources) or not cfg.respawn:
+    points = t.spawn_points
+    lanes = m.sources if points is None else np.concatenate([m.sources, points.lane])
+    if t.active.all() or not len(lanes) or not cfg.respawn:
         return False
+    starts = np.zeros(len(m.sources)) if points is None else np.concatenate([np.zeros(len(m.sources)), points.s])
     idle = np.flatnonzero(~t.active)
     lane = np.where(t.active, t.path[:, 0], -1)
-    near_start = (lane[:, None] == m.sources[None]) & ((t.s - t.length / 2)[:, None] < cfg.spawn_clear)
+    near_start = (lane[:, None] == lanes[None]) & (np.abs(t.s[:, None] - starts[None]) - t.length[:, None] / 2
+                                                   < cfg.spawn_clear)
     clear = ~near_start.any(axis=0)
-    if t.urban:  # short source lanes: anything near the source's start counts, whatever lane it is on
+    place_xy = m.source_xy if points is None else np.concatenate([m.source_xy, np.column_stack(
+        m.lookup(points.lane, points.s)[:2])])
+    if t.urban:  # short source lanes: anything near the place counts, whatever lane it is on
         xy = t._current_pos[t.vehicle_slots[t.active], :2]
-        dist = np.hypot(xy[:, None, 0] - m.source_xy[None, :, 0], xy[:, None, 1] - m.source_xy[None, :, 1])
+        dist = np.hypot(xy[:, None, 0] - place_xy[None, :, 0], xy[:, None, 1] - place_xy[None, :, 1])
         clear &= ~(dist < cfg.spawn_clear).any(axis=0)
     if t.ego is not None:
-        clear &= np.hypot(m.source_xy[:, 0] - t.ego.x, m.source_xy[:, 1] - t.ego.y) >= cfg.spawn_clear
-    pick = (t.rng.random(len(idle)) * len(m.sources)).astype(np.int64)
+        clear &= np.hypot(place_xy[:, 0] - t.ego.x, place_xy[:, 1] - t.ego.y) >= cfg.spawn_clear
+    pick = (t.rng.random(len(idle)) * len(lanes)).astype(np.int64)
     ok = clear[pick]
     if not ok.any():
         return False
     rows, src = idle[ok], pick[ok]
     _, first = np.unique(src, return_index=True)
     rows, src = rows[first], src[first]
-    activate(t, rows, m.sources[src], t.length[rows] / 2 + 0.5)
+    activate(t, rows, lanes[src], np.maximum(starts[src], t.length[rows] / 2 + 0.5))
+    planned = src >= len(m.sources)
+    if planned.any():  # the spawn point's speed range and lane-change intention
+        k = src[planned] - len(m.sources)
+        low, high = points.speed[k, 0], points.speed[k, 1]
+        t.v0[rows[planned]] = low + (high - low) * t.intent_rng.random(len(k))
+        t.v[rows[planned]] = np.minimum(t.v[rows[planned]], t.v0[rows[planned]])
+        wish = points.lane_change[k]
+        t.intention[rows[planned], LANE_CHANGE] = np.where(wish >= 0, wish, t.intention[rows[planned], LANE_CHANGE])
     t.stats["spawned"] += len(rows)
     return True
 

@@ -1,0 +1,151 @@
+"""Urban traffic health: each scenario map and the concatenated map at their default traffic, several
+seeds, so many simulated minutes each (traffic alone, no ego).
+
+    python -m tools.urban_traffic --minutes 10 --seeds 5 --out results/urban/traffic.md
+
+Checked at every traffic substep: overlapping road users (oriented boxes). Reported: the longest stop of a
+vehicle that is not queued behind a stopped leader (a vehicle stopped within QUEUE_GAP of a stopped leader on
+its path is queued), the longest stop of any vehicle, and the throughput of every conflict zone (vehicles per
+minute leaving either of its lanes), and the traffic update's wall time per simulated second.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from mjdrive.roads.conflicts import CROSSING
+from mjdrive.roads.urban import concatenated
+from mjdrive.traffic import overlapping_pairs
+from mjdrive.traffic.urban import default_counts, urban_traffic
+
+MAPS = {"roundabout": ("roundabout",), "lane_change": ("road",), "crossroad": ("crossroad",),
+        "merge": ("merge",), "concatenated": ("roundabout", "road", "crossroad", "merge")}
+STOPPED = 0.1  # [m/s]
+QUEUE_GAP = 8.0  # [m] bumper to bumper behind a stopped leader: queued
+
+
+def path_leaders(traffic) -> tuple[np.ndarray, np.ndarray]:
+    """Gap [m] to the nearest agent ahead on each vehicle's planned path and that agent's speed [m/s]."""
+    ctx = traffic._context()
+    nv = traffic.nv
+    pos = ctx["offset"][:nv, ctx["lane"]] + ctx["s"][None]  # (V, A) [m]
+    ahead = pos > traffic.s[:, None]
+    ahead[np.arange(nv), np.arange(nv)] = False
+    gap = np.where(ahead, pos - traffic.s[:, None] - (traffic.length[:, None] + ctx["length"][None]) / 2, np.inf)
+    leader = np.argmin(gap, axis=1)
+    return gap[np.arange(nv), leader], ctx["v"][leader]
+
+
+def run(name: str, seed: int, minutes: float) -> dict:
+    """One map, one seed: overlap substeps, stops, zone throughput, cost."""
+    composed = concatenated(order=MAPS[name])
+    traffic = urban_traffic(composed)
+    traffic.reset(np.random.default_rng(seed))
+    dt = traffic.config.substep
+    zones = traffic.zones
+    n_steps = int(round(minutes * 60.0 / dt))
+    stopped, excused_free, worst_free, worst_any = np.zeros(traffic.nv), np.zeros(traffic.nv), 0.0, 0.0
+    overlap_substeps = 0
+    passes = np.zeros(traffic.map.n_lanes, dtype=np.int64)  # vehicles that left each lane
+    lane_before = traffic.path[:, 0].copy()
+    traffic.cpu_time = 0.0
+    decision = traffic.n_plan
+    for step in range(n_steps):
+        traffic.advance(dt)
+        present = traffic.present
+        if len(overlapping_pairs(traffic.poses()[present], traffic.half_size[present])):
+            overlap_substeps += 1
+        lane_now = np.where(traffic.active, traffic.path[:, 0], -1)
+        left = (lane_before >= 0) & (lane_now != lane_before)
+        np.add.at(passes, lane_before[left], 1)
+        lane_before = lane_now
+        speed = traffic.velocities()[traffic.vehicle_slots]
+        still = traffic.active & (np.hypot(speed[:, 0], speed[:, 1]) < STOPPED)
+        stopped = np.where(still, stopped + dt, 0.0)
+        if step % decision == 0:
+            gap, leader_speed = path_leaders(traffic)
+            queued = (gap < QUEUE_GAP) & (leader_speed < 0.5)
+        excused_free = np.where(still & ~queued, excused_free + dt, 0.0)
+        worst_any, worst_free = max(worst_any, stopped.max()), max(worst_free, excused_free.max())
+    throughput = (passes[zones.lane_a] + passes[zones.lane_b]) / minutes  # (Z,) vehicles per minute
+    return {"overlaps": overlap_substeps, "stop_free": worst_free, "stop_any": worst_any,
+            "throughput": throughput, "cost": traffic.cpu_time / (minutes * 60.0), "stats": dict(traffic.stats),
+            "zones": zones, "road_map": composed.road_map, "counts": default_counts(composed)}
+
+
+def report(results: dict[str, list[dict]], minutes: float, seeds: int) -> str:
+    lines = [
+        "# Urban traffic at the default density",
+        "",
+        f"Made by `python -m tools.urban_traffic --minutes {minutes:g} --seeds {seeds}`: each map of study 002 "
+        f"alone and concatenated, {minutes:g} simulated minutes per seed, seeds 0-{seeds - 1}, traffic only "
+        "(no ego), urban rules (`mjdrive.traffic.urban`).",
+        "",
+        "- overlaps: traffic substeps (every 0.02 s) in which two road users' boxes overlap;",
+        f"- free stop: the longest time a vehicle stood still (< {STOPPED} m/s) while not queued behind a "
+        f"stopped leader within {QUEUE_GAP:g} m (waiting at a give-way line counts);",
+        "- any stop: the longest stop of any vehicle, queued or not;",
+        "- throughput: vehicles per minute through each conflict zone (leaving either of its lanes), mean over "
+        "seeds; min / median / max over the map's zones;",
+        "- cost: wall time of the traffic update per simulated second (one core).",
+        "",
+        "| map | road users | overlaps | free stop max [s] | any stop max [s] | zones | throughput min / median / "
+        "max [veh/min] | spawned per min | cost [ms per sim-s] |",
+        "| --- | --- | ---: | ---: | ---: | ---: | --- | ---: | ---: |",
+    ]
+    for name, runs in results.items():
+        tp = np.mean([r["throughput"] for r in runs], axis=0)
+        counts = ", ".join(f"{n} {k}s" for k, n in runs[0]["counts"].items())
+        spawned = np.mean([r["stats"]["spawned"] for r in runs]) / minutes
+        tp_text = f"{tp.min():.1f} / {np.median(tp):.1f} / {tp.max():.1f}" if len(tp) else "-"
+        lines.append(f"| {name} | {counts} | {sum(r['overlaps'] for r in runs)} | "
+                     f"{max(r['stop_free'] for r in runs):.1f} | {max(r['stop_any'] for r in runs):.1f} | {len(tp)} | "
+                     f"{tp_text} | {spawned:.1f} | {1e3 * np.mean([r['cost'] for r in runs]):.2f} |")
+    for name, runs in results.items():
+        zones, rm = runs[0]["zones"], runs[0]["road_map"]
+        tp = np.mean([r["throughput"] for r in runs], axis=0)
+        lines += ["", f"## {name}: throughput per conflict zone", "",
+                  "| zone | kind | lane a | lane b | gives way | veh/min |", "| ---: | --- | --- | --- | --- | ---: |"]
+        for z in range(len(zones)):
+            who = {0: "a", 1: "b"}.get(int(zones.who_yields[z]), "first come")
+            kind = "crossing" if zones.kind[z] == CROSSING else "merge"
+            lines.append(f"| {z} | {kind} | {rm.lanes[zones.lane_a[z]].name} | {rm.lanes[zones.lane_b[z]].name} | "
+                         f"{who} | {tp[z]:.1f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--minutes", type=float, default=10.0, help="simulated minutes per map and seed")
+    parser.add_argument("--seeds", type=int, default=5, help="seeds 0..N-1")
+    parser.add_argument("--maps", nargs="*", default=list(MAPS), choices=list(MAPS))
+    parser.add_argument("--out", default=None, help="write the markdown report here")
+    args = parser.parse_args(argv)
+    results: dict[str, list[dict]] = {}
+    total, done, start = len(args.maps) * args.seeds, 0, time.perf_counter()
+    for name in args.maps:
+        for seed in range(args.seeds):
+            result = run(name, seed, args.minutes)
+            results.setdefault(name, []).append(result)
+            done += 1
+            print(f"[{done}/{total}] {name} seed {seed}: overlaps {result['overlaps']}, free stop "
+                  f"{result['stop_free']:.1f} s, any stop {result['stop_any']:.1f} s "
+                  f"({time.perf_counter() - start:.0f} s)", file=sys.stderr, flush=True)
+    text = report(results, args.minutes, args.seeds)
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(text)
+        print(f"wrote {args.out}")
+    else:
+        print(text)
+    bad = any(r["overlaps"] or r["stop_free"] > 30.0 for runs in results.values() for r in runs)
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
