@@ -67,6 +67,8 @@ class EvalSpec:
     deterministic: bool = True
     record_dir: str | None = None
     torch_threads: int = 1
+    live_port: int | None = None  # stream the logs' channels to Foxglove (one server; episodes in this process)
+    live_host: str = "127.0.0.1"
 
 
 class EpisodeRunner:
@@ -83,6 +85,15 @@ class EpisodeRunner:
         domain, self.name = split_task(spec.task)
         self.env = make_env(domain, self.name, actions=spec.actions, **spec.task_kwargs)
         self.arms = roundabout_arms(domain, self.name, spec.task_kwargs)  # to count the exits from the entry
+        self.live = None  # with spec.live_port: one recorder (one live server) for every episode, run in order
+        if spec.live_port is not None:
+            from mjdrive.record import RecordEpisodes, RecordOptions
+
+            options = RecordOptions(live_port=spec.live_port, live_host=spec.live_host)
+            self.live = RecordEpisodes(self.env, spec.record_dir, options)
+            from mjdrive.cli import announce_live
+
+            announce_live(self.live)
 
     def run(self, index: int) -> dict[str, Any]:
         """Episode `index` (seed `spec.seed + index`) as a row; with `spec.record_dir` also its MCAP log, named
@@ -91,7 +102,9 @@ class EpisodeRunner:
 
         spec, seed = self.spec, self.spec.seed + index
         env = self.env
-        if spec.record_dir is not None:
+        if self.live is not None:
+            env = self.live
+        elif spec.record_dir is not None:
             from mjdrive.record import RecordEpisodes, episode_filename
 
             env = RecordEpisodes(self.env, spec.record_dir, first_episode=index)
@@ -109,7 +122,7 @@ class EpisodeRunner:
             steps += 1
             if terminated or truncated:
                 break
-        if spec.record_dir is not None:
+        if spec.record_dir is not None and self.live is None:
             env.recorder.close()
         log = Path(info["record_path"]).name if "record_path" in info else None
         return episode_row(info, episode=index, seed=seed, reward=total, steps=steps, terminated=terminated,
@@ -117,6 +130,8 @@ class EpisodeRunner:
                            control_dt=self.env.unwrapped.dm_env.control_timestep())
 
     def close(self) -> None:
+        if self.live is not None:
+            self.live.recorder.close()
         self.env.close()
 
 
@@ -137,13 +152,15 @@ def run_episode(spec: EvalSpec, index: int) -> dict[str, Any]:
 def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None, seed: int = 10_000,
              task_kwargs: dict | None = None, deterministic: bool = True,
              record_dir: str | Path | None = None, progress: str | None = None, workers: int = 0,
-             ray: str | None = None, on_episode: Callable[[dict], None] | None = None) -> dict[str, Any]:
+             ray: str | None = None, on_episode: Callable[[dict], None] | None = None,
+             live: tuple[str, int] | None = None) -> dict[str, Any]:
     """Roll out the policy for `episodes` episodes (seeds seed, seed+1, ...); returns rows and a summary.
     With `record_dir`, every episode is also written there as an MCAP log (`mjdrive replay`/`logs`).
     `progress`: the label of a tqdm bar over the episodes (on stderr); None: no bar.
     `workers=N` runs the episodes in N worker processes, `ray` (an address, "local") as Ray tasks
     (`mjdrive.envs.fanout`); rows, summary and logs are the same for any N and either backend (episodes of a
-    worker that died run again elsewhere). `on_episode(row)` is called as each episode ends."""
+    worker that died run again elsewhere). `on_episode(row)` is called as each episode ends. `live=(host,
+    port)` streams the logs' channels to Foxglove while the episodes run (in this process only)."""
     from mjdrive.envs.fanout import fan_out
     from mjdrive.progress import Progress
 
@@ -151,10 +168,13 @@ def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None
     config = payload["config"]
     task = task or config["task"]
     kwargs = {**config.get("task_kwargs", {}), **(task_kwargs or {})}
-    spec = EvalSpec(str(checkpoint), task, kwargs, config.get("actions", "continuous"), seed, deterministic,
-                    None if record_dir is None else str(record_dir), int(config.get("torch_threads", 1)))
-    start = time.perf_counter()
     local = not workers and ray is None
+    if live is not None and (not local or record_dir is None):
+        raise ValueError("--live streams the episode logs of this process: drop --no-record, --workers and --ray")
+    spec = EvalSpec(str(checkpoint), task, kwargs, config.get("actions", "continuous"), seed, deterministic,
+                    None if record_dir is None else str(record_dir), int(config.get("torch_threads", 1)),
+                    *((live[1], live[0]) if live is not None else ()))
+    start = time.perf_counter()
     if local:  # this process runs them: reuse the policy loaded above
         _RUNNERS.clear()
         _RUNNERS[repr(spec)] = EpisodeRunner(spec, agent)
@@ -257,7 +277,7 @@ def eval_command(args) -> int:
     result = evaluate(args.checkpoint, episodes=args.episodes, task=args.task, seed=args.seed,
                       task_kwargs=task_kwargs, deterministic=not args.stochastic, record_dir=record_dir,
                       progress="eval", workers=getattr(args, "workers", 0),
-                      ray=getattr(args, "ray", None))
+                      ray=getattr(args, "ray", None), live=(args.live_host, args.live_port) if args.live else None)
     if record_dir is not None:
         result["logs"] = record_dir
     markdown = to_markdown(result)

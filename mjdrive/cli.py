@@ -502,6 +502,7 @@ def build_parser() -> argparse.ArgumentParser:
                                "--out); it must be new or empty")
     evaluate.add_argument("--overwrite", action="store_true",
                           help="replace the logs of an earlier evaluation in the logs folder")
+    add_live_arguments(evaluate)
     evaluate.set_defaults(func=cmd_eval)
 
     ensemble = sub.add_parser("ensemble", help="combine trained policies into one that `eval` reads like a policy.pt")

@@ -8,6 +8,7 @@ import json
 import struct
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 from websockets.sync.client import connect
@@ -103,3 +104,20 @@ def test_run_live_announces_its_loopback_url(tmp_path):
     result = subprocess.run(command, capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert "live: ws://127.0.0.1:" in result.stderr
+
+
+def test_eval_live_streams_from_one_server_and_refuses_workers(tmp_path):
+    import subprocess
+    import sys
+
+    checkpoint = str(Path(__file__).resolve().parents[1] / "results/checkpoints/ppo_features_straight.pt")
+    base = [sys.executable, "-m", "mjdrive.cli", "eval", "--checkpoint", checkpoint, "--episodes", "2",
+            "--task-kwarg", "time_limit=1", "--live", "--live-port", "0"]
+    result = subprocess.run([*base, "--out", str(tmp_path / "e")], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stderr.count("live: ws://127.0.0.1:") == 1  # one server for both episodes
+    assert sorted(p.name for p in (tmp_path / "e").glob("*.mcap")) == \
+        ["waypoints-straight_10000_00000.mcap", "waypoints-straight_10001_00001.mcap"]
+    refused = subprocess.run([*base, "--workers", "2", "--out", str(tmp_path / "w")], capture_output=True,
+                             text=True, timeout=120)
+    assert refused.returncode == 2 and "--live streams the episode logs of this process" in refused.stderr
