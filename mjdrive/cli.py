@@ -368,6 +368,9 @@ def cmd_train(args) -> int:
 def cmd_eval(args) -> int:
     from mjdrive.progress import Starting
 
+    if args.live and (getattr(args, "workers", 0) or getattr(args, "ray", None) or not args.record):
+        raise ValueError("--live streams the episode logs of this process: drop --no-record, --workers and --ray")
+
     with Starting("mjdrive eval: loading torch, the checkpoint and the env"):
         from agents.evaluate import eval_command
 
