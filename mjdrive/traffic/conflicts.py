@@ -34,6 +34,7 @@ COMMITTED = 0.5  # [m] past the stop line: the vehicle goes on (it could not sto
 EDGE_MARGIN = 0.5  # [m] before an occupied zone
 MERGE_RANGE = 60.0  # [m] agents farther from a merge point than this do not take part in the zipper
 CLEAR_ACCEL = 2.0  # [m/s^2] a yielding vehicle's acceleration through the zone, for its time to clear it
+CHANGING_RADIUS = 8.0  # [m] a vehicle changing lane this close to a zone's point occupies it
 HELD_SPEED = 1.0  # [m/s] a vehicle slower than this within HELD_DISTANCE of its give-way line is waiting there
 HELD_DISTANCE = 5.0  # [m]
 
@@ -55,6 +56,7 @@ class ApproachTable:
     zone: np.ndarray  # (R,) row in the ConflictZones table
     stop: np.ndarray  # (R,) [m] front-bumper stop line along the approach lane
     courtesy: np.ndarray  # (R,) bool: a merge where courteous vehicles open gaps (not a roundabout entry)
+    point: np.ndarray  # (R, 2) [m] where the centre lines cross, or the merge point
 
     @property
     def partner(self) -> np.ndarray:
@@ -86,7 +88,7 @@ class ApproachTable:
             tie=np.concatenate([tie, tie]), timed=np.concatenate([zones.kind == CROSSING] * 2),
             merge=np.concatenate([zones.kind != CROSSING] * 2),
             zone=np.concatenate([z, z]), stop=np.concatenate([zones.s_a_in, zones.s_b_in]) - STOP_MARGIN,
-            courtesy=np.concatenate([zones.kind != CROSSING] * 2),
+            courtesy=np.concatenate([zones.kind != CROSSING] * 2), point=np.concatenate([zones.point] * 2),
         )
         if road_map is not None:  # merges inside a junction are taken like crossings, at the junction's entry
             in_junction = np.array([road_map.lanes[int(i)].in_junction for i in range(len(road_map.lanes))])
@@ -192,6 +194,14 @@ def conflict_columns(t: Traffic, ctx: dict, f: dict) -> tuple[np.ndarray, np.nda
     # which could go round in a circle).
     in_zone = inside & (front_o > table.o_in[None])  # (A, R) physically in it
     promised = (others & inside[None]).any(axis=1)  # (F, R)
+    # A vehicle moving over between lanes is on neither lane's path near the zone: judge it by distance.
+    changing = np.flatnonzero(t.active & (t.lc_dist < cfg.lane_change_length))
+    if len(changing):
+        xy = t._current_pos[t.vehicle_slots[changing], :2]
+        point = table.point  # (R, 2)
+        near = np.hypot(xy[:, None, 0] - point[None, :, 0], xy[:, None, 1] - point[None, :, 1]) < CHANGING_RADIUS
+        not_me = changing[None, :] != rows[:, None]  # (F, C)
+        promised |= (not_me[:, :, None] & near[None]).any(axis=1)
     occupied = (others & in_zone[None]).any(axis=1)
     # Ties: whoever reaches its give-way line sooner goes first (then the lower row): a strict order, so
     # waiting never goes round in a circle.

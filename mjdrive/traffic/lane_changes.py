@@ -9,6 +9,7 @@ import numpy as np
 from mjdrive.traffic.geometry import smoothstep
 from mjdrive.traffic.intentions import KEEP, LANE_CHANGE, LEFT, RIGHT
 
+ZONE_CLEARANCE = 8.0  # [m] intended lane changes start at least this plus their length from any zone point
 EGO_IDM = (2.0, 3.0, 1.5)  # [m/s^2, m/s^2, s] a, b, T assumed for the ego as a follower
 
 if TYPE_CHECKING:
@@ -69,6 +70,11 @@ def _intended(t: Traffic, right: np.ndarray, left: np.ndarray, near_merge: np.nd
     # Never into a lane of lower rank (an acceleration lane that must give way at its end).
     target = np.where(ending | (t.roles.priority[np.maximum(target, 0)] >= t.roles.priority[lane0]), target, -1)
     able = t.active & (target >= 0) & (t.lc_dist >= cfg.lane_change_length) & (t.s > 1.0) & ~near_merge
+    if t.approaches is not None and len(t.approaches):  # not across a conflict zone: the move takes a while
+        xy = t._current_pos[t.vehicle_slots, :2]
+        point = t.approaches.point
+        nearest = np.hypot(xy[:, None, 0] - point[None, :, 0], xy[:, None, 1] - point[None, :, 1]).min(axis=1)
+        able &= nearest > ZONE_CLEARANCE + cfg.lane_change_length
     t.lc_signal = np.where(able & (t.lc_signal < 0), t.time, np.where(able | t.lc_changing, t.lc_signal, -1.0))
     ready = able & (t.lc_signal >= 0) & (t.time - t.lc_signal >= cfg.signal_time - 1e-9)
     if not ready.any():

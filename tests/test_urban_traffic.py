@@ -1,0 +1,206 @@
+"""Urban traffic (study 002): intentions honoured by behaviour, right of way at conflict zones, the old jam
+at a four-way junction and the vanishing at an on-ramp's end gone, and no overlap on the concatenated map.
+Traffic alone (no MuJoCo), so every scene runs in a fraction of a second of wall time."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mjdrive import roads
+from mjdrive.roads.conflicts import conflict_zones
+from mjdrive.roads.urban import concatenated
+from mjdrive.traffic import Traffic, TrafficConfig, overlapping_pairs
+from mjdrive.traffic.intentions import AFTER, BEFORE, LANE_CHANGE, LEFT, RIGHT, ROUNDABOUT, STRAIGHT, TAKE_WAY, YIELD
+from mjdrive.traffic.urban import URBAN_CONFIG, urban_traffic
+
+SUBSTEP = URBAN_CONFIG.substep  # [s]
+QUIET = TrafficConfig.from_dict({**URBAN_CONFIG.to_dict(), "respawn": False})  # scenes: nobody else enters
+
+
+def scene(order: tuple[str, ...], n: int = 2) -> tuple[Traffic, roads.RoadMap]:
+    """A piece's map with `n` cars, none on it yet (place them)."""
+    composed = concatenated(order=order)
+    traffic = urban_traffic(composed, counts={"car": n}, config=QUIET)
+    traffic.reset(np.random.default_rng(0))
+    traffic.remove_all()
+    return traffic, composed.road_map
+
+
+def lane(road_map, name: str) -> int:
+    return road_map.lane_id(name)
+
+
+def run(traffic: Traffic, seconds: float, watch=None) -> None:
+    for _ in range(int(round(seconds / SUBSTEP))):
+        traffic.advance(SUBSTEP)
+        if watch is not None:
+            watch()
+
+
+def lanes_driven(traffic: Traffic, row: int, seconds: float) -> list[int]:
+    """The lanes vehicle `row` drives through, in order."""
+    seen: list[int] = []
+
+    def note():
+        current = int(traffic.path[row, 0])
+        if traffic.active[row] and (not seen or seen[-1] != current):
+            seen.append(current)
+
+    run(traffic, seconds, note)
+    return seen
+
+
+@pytest.mark.parametrize("turn, exit_lane", [(STRAIGHT, "crossroad/straight_out_0"), (LEFT, "crossroad/left_out_0"),
+                                             (1 + 1, "crossroad/right_out_0")])
+def test_crossroad_intention_is_the_turn_taken(turn, exit_lane):
+    traffic, rm = scene(("crossroad",), n=1)
+    traffic.place(0, [lane(rm, "crossroad/approach_in_0")], 20.0, 6.0, intentions={"crossroad": turn})
+    driven = lanes_driven(traffic, 0, 25.0)
+    assert lane(rm, exit_lane) in driven, [rm.lanes[i].name for i in driven]
+
+
+def merge_order(courtesy: int) -> tuple[int, int]:
+    """A car on the acceleration lane nearer the merge point than a main-road car behind it: which one
+    reaches the lane after the merge first (row), and when each does."""
+    traffic, rm = scene(("merge",), n=2)
+    main, accel, after = lane(rm, "merge_road/main_0_2"), lane(rm, "merge_road/accel"), lane(rm, "merge_road/main_0_4")
+    traffic.place(0, [main], 30.0, 10.0, desired_speed=12.0, intentions={"merge": courtesy})
+    traffic.place(1, [accel], 45.0, 3.0, desired_speed=12.0)
+    first: list[int] = []
+
+    def note():
+        for row in (0, 1):
+            if traffic.path[row, 0] == after and row not in first:
+                first.append(row)
+
+    run(traffic, 20.0, note)
+    return tuple(first)
+
+
+def test_a_yielding_vehicle_lets_the_merging_car_in_and_a_take_way_one_does_not():
+    assert merge_order(YIELD) == (1, 0)  # the merging car first
+    assert merge_order(TAKE_WAY) == (0, 1)  # the main-road car keeps its way
+
+
+@pytest.mark.parametrize("start, wish, end", [("overtaking_road/main_1", LEFT, "overtaking_road/main_0"),
+                                              ("overtaking_road/main_0", RIGHT, "overtaking_road/main_1")])
+def test_a_lane_change_intention_ends_in_the_named_lane(start, wish, end):
+    traffic, rm = scene(("road",), n=1)
+    traffic.place(0, [lane(rm, start)], 20.0, 8.0, desired_speed=8.0, intentions={"lane_change": wish})
+    run(traffic, 12.0)
+    assert traffic.path[0, 0] == lane(rm, end)
+    assert traffic.lc_dist[0] >= traffic.config.lane_change_length  # moved over completely
+    x, y, yaw = traffic.poses()[traffic.vehicle_slots[0]]
+    s, d = rm.lanes[lane(rm, end)].frame(np.array([x, y]))[:2]
+    assert abs(d - traffic.d_pref[0]) < 0.05  # centred in the new lane (at its own preferred offset)
+    assert traffic.intention[0, LANE_CHANGE] == 0  # the manoeuvre is over: it now keeps its lane
+
+
+def test_keep_intention_never_changes_lane():
+    traffic, rm = scene(("road",), n=1)
+    right = lane(rm, "overtaking_road/main_1")
+    traffic.place(0, [right], 10.0, 8.0, desired_speed=8.0, intentions={"lane_change": 0})
+    assert lane(rm, "overtaking_road/main_0") not in lanes_driven(traffic, 0, 20.0)
+
+
+@pytest.mark.parametrize("wish", [BEFORE, AFTER])
+def test_roundabout_intention_is_the_exit_relative_to_the_egos(wish):
+    """The ego enters at arm 2 and leaves at arm 0 (two exits on); a car entering at arm 3 meets the exit of
+    arm 0 first (the ego's: it cannot leave before it), one entering at arm 1 meets arm 2's exit first."""
+    traffic, rm = scene(("roundabout",), n=1)
+    route = rm.shortest_route(lane(rm, "roundabout/arm2_in_0"), lane(rm, "roundabout/arm0_out_0"))
+    traffic.set_ego_route(route)
+    ego_exit = traffic.ego_exit
+    assert rm.lanes[ego_exit].name == "roundabout/arm0_exit"
+    traffic.place(0, [lane(rm, "roundabout/arm1_in_0")], 40.0, 4.0, intentions={"roundabout": wish})
+    driven = lanes_driven(traffic, 0, 40.0)
+    exits = [i for i in driven if traffic.roles.ring_exit[i]]
+    assert len(exits) == 1
+    if wish == BEFORE:  # arm 1 -> the exit of arm 2 or 3, never reaching the ego's exit
+        assert exits[0] != ego_exit and ego_exit not in driven
+    else:  # past the ego's exit first, then out
+        assert ego_exit not in driven
+        ring_before_exit = driven[: driven.index(exits[0])]
+        ego_exit_ring = rm.predecessors(ego_exit)[0]
+        assert ego_exit_ring in ring_before_exit
+    assert traffic.intention[0, ROUNDABOUT] == wish
+
+
+def test_the_minor_road_gives_way_at_the_crossroad():
+    """A car on the minor approach waits at its give-way line while a main-road car crosses, then goes."""
+    traffic, rm = scene(("crossroad",), n=2)
+    traffic.place(0, [lane(rm, "crossroad/approach_in_0")], 40.0, 3.0, intentions={"crossroad": STRAIGHT})
+    traffic.place(1, [lane(rm, "crossroad/left_in_0")], 25.0, 8.0, desired_speed=8.0,
+                  intentions={"crossroad": STRAIGHT})
+    order: list[int] = []
+    crossing = {lane(rm, "crossroad/approach->straight_0"), lane(rm, "crossroad/left->right_0")}
+
+    def note():
+        for row in (0, 1):
+            if int(traffic.path[row, 0]) in crossing and row not in order:
+                order.append(row)
+
+    run(traffic, 20.0, note)
+    assert order == [1, 0]
+
+
+def free_run(traffic: Traffic, seconds: float) -> tuple[int, float, dict]:
+    """Overlapping substeps, the longest stop [s] of a vehicle not queued behind a stopped leader, and where
+    vehicles left the map."""
+    from tools.urban_traffic import path_leaders
+
+    overlaps, stopped, worst = 0, np.zeros(traffic.nv), 0.0
+    vanished: dict[str, int] = {}
+    queued = np.zeros(traffic.nv, dtype=bool)
+    for step in range(int(round(seconds / SUBSTEP))):
+        before, was_active = traffic.path[:, 0].copy(), traffic.active.copy()
+        generation = traffic.generation[traffic.vehicle_slots].copy()
+        traffic.advance(SUBSTEP)
+        replaced = traffic.generation[traffic.vehicle_slots] != generation  # left and re-entered at once
+        for row in np.flatnonzero(was_active & (~traffic.active | replaced)):  # rare: where vehicles leave
+            name = traffic.map.road_map.lanes[before[row]].name
+            vanished[name] = vanished.get(name, 0) + 1
+        present = traffic.present
+        overlaps += len(overlapping_pairs(traffic.poses()[present], traffic.half_size[present])) > 0
+        speed = np.hypot(*traffic.velocities()[traffic.vehicle_slots].T)
+        if step % traffic.n_plan == 0:
+            gap, leader_speed = path_leaders(traffic)
+            queued = (gap < 8.0) & (leader_speed < 0.5)
+        stopped = np.where(traffic.active & (speed < 0.1) & ~queued, stopped + SUBSTEP, 0.0)
+        worst = max(worst, stopped.max())
+    return overlaps, worst, vanished
+
+
+def test_the_old_junction_jam_is_gone():
+    """`roads.junction()` with 16 cars used to stand still after 30-60 s with cars overlapping. Every lane
+    has the same rank there (an all-way give-way junction, first come first served), so a car may wait
+    for a minute or so at rush hour, but the junction keeps flowing."""
+    rm = roads.junction()
+    traffic = Traffic(rm, ["car"] * 16, URBAN_CONFIG, conflicts=conflict_zones(rm))
+    traffic.reset(np.random.default_rng(3))
+    overlaps, worst, _ = free_run(traffic, 120.0)
+    spawned = traffic.stats["spawned"]
+    assert overlaps == 0 and worst < 90.0
+    run(traffic, 30.0)
+    assert traffic.stats["spawned"] > spawned  # still flowing: vehicles leave and new ones enter
+
+
+def test_nobody_vanishes_at_the_end_of_an_on_ramp():
+    """`roads.merge()`'s ramp ends beside the main road: its cars move over instead of leaving the map."""
+    rm = roads.merge()
+    traffic = Traffic(rm, ["car"] * 12, URBAN_CONFIG, conflicts=conflict_zones(rm))
+    traffic.reset(np.random.default_rng(1))
+    overlaps, worst, vanished = free_run(traffic, 120.0)
+    assert overlaps == 0 and worst < 30.0
+    assert set(vanished) <= {"main_0_2", "main_1_2"} and sum(vanished.values()) > 10, vanished
+    assert traffic.stats["lane_changes"] > 0
+
+
+def test_concatenated_map_two_minutes_without_overlap_or_deadlock():
+    traffic = urban_traffic(concatenated())
+    traffic.reset(np.random.default_rng(0))
+    overlaps, worst, _ = free_run(traffic, 120.0)
+    assert overlaps == 0 and worst < 30.0
+    assert traffic.stats["spawned"] > 20
+    assert set(np.unique(traffic.intention[traffic.active], axis=0).ravel()) <= {0, 1, 2}
