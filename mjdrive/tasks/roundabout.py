@@ -402,14 +402,14 @@ class RoundaboutTask(DrivingTask):
         present = np.flatnonzero(traffic.present)
         if not len(present) or not self.neighbours:
             return out
-        rel = traffic._current_pos[present, :2] - self.xy
+        rel = traffic.positions()[present] - self.xy
         dist2 = rel[:, 0] ** 2 + rel[:, 1] ** 2
         k = min(self.neighbours, len(present))
         order = np.argsort(dist2, kind="stable")[:k]
         idx = present[order]
         c, s = np.cos(self.yaw), np.sin(self.yaw)
         vx, vy = self.vehicle.velocity_body(physics.raw_data)
-        speed, yaw = traffic._current_speed[idx], traffic._current_yaw[idx]
+        speed, yaw = traffic.speeds()[idx], traffic.yaws()[idx]
         dyaw = yaw - self.yaw
         r = rel[order]
         out[:k, 0] = 1.0

@@ -520,6 +520,26 @@ class Traffic:
         """(N,3) [m, m, rad] x, y, yaw of every slot now (inactive slots are below the ground)."""
         return np.column_stack([self._current_pos[:, :2], self._current_yaw])
 
+    def positions(self) -> np.ndarray:
+        """(N,2) [m] x, y of every slot now (read-only view)."""
+        view = self._current_pos[:, :2]
+        view.flags.writeable = False
+        return view
+
+    def speeds(self) -> np.ndarray:
+        """(N,) [m/s] speed of every slot now (0 for inactive slots)."""
+        return self._current_speed.copy()
+
+    def yaws(self) -> np.ndarray:
+        """(N,) [rad] heading of every slot now."""
+        return self._current_yaw.copy()
+
+    def intentions(self) -> np.ndarray:
+        """(N, 4) intention of every slot by scenario (columns `intentions.SCENARIOS`; -1 for pedestrians)."""
+        out = np.full((self.n, len(SCENARIOS)), -1, dtype=np.int64)
+        out[self.vehicle_slots] = self.intention
+        return out
+
     def velocities(self) -> np.ndarray:
         """(N,2) [m/s] world velocity of every slot now."""
         return self._current_speed[:, None] * np.column_stack([np.cos(self._current_yaw),
