@@ -371,7 +371,11 @@ def cmd_eval(args) -> int:
     if args.live and (getattr(args, "workers", 0) or getattr(args, "ray", None) or not args.record):
         raise ValueError("--live streams the episode logs of this process: drop --no-record, --workers and --ray")
 
-    with Starting("mjdrive eval: loading torch, the checkpoint and the env"):
+    with Starting("mjdrive eval: loading torch and checking the checkpoint", terminal_only=True):
+        from agents.common import load_checkpoint
+
+        load_checkpoint(args.checkpoint)  # a bad file is a one-line error, before any status line in a log
+    with Starting("mjdrive eval: loading the policy and the env"):
         from agents.evaluate import eval_command
 
         return eval_command(args)

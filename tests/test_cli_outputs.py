@@ -58,6 +58,10 @@ def test_a_slow_start_is_announced_and_a_quick_one_is_not():
     starting = progress.Starting("cmd: loading", delay=0.3, file=slow)
     time.sleep(0.3 + PLAIN_INTERVAL + 0.3)
     assert slow.getvalue().startswith("cmd: loading [00:0")
+    log = io.StringIO()  # a wait that may end in a user's mistake says nothing in a log
+    with progress.Starting("cmd: checking", delay=0.0, terminal_only=True, file=log):
+        time.sleep(PLAIN_INTERVAL + 0.3)
+    assert log.getvalue() == ""
     with Progress(total=1, desc="work", file=io.StringIO()) as bar:  # the real progress takes over
         assert starting.disable or progress._STARTING is None
         bar.update()
