@@ -78,6 +78,45 @@ def run(name: str, seed: int, minutes: float) -> dict:
             "zones": zones, "road_map": composed.road_map, "counts": default_counts(composed)}
 
 
+def bench(seconds: float = 60.0, control_period: float = 0.1, seed: int = 0) -> str:
+    """Traffic's share of a control step on the concatenated map at its default traffic, in a MuJoCo world
+    (ego car, road, traffic mocap bodies): physics at the default step and the traffic substeps, without an
+    observation or reward, so the share is an upper bound of its share of an env step."""
+    from dm_control.mujoco import wrapper
+
+    from mjdrive import world
+    from mjdrive.tasks.base import Physics
+    from mjdrive.traffic import slots
+    from mjdrive.vehicle import Vehicle
+
+    composed = concatenated()
+    traffic = urban_traffic(composed)
+    model = world.build(composed.road_map, traffic=slots(traffic.kinds))
+    physics = Physics.from_model(wrapper.MjModel(model))
+    traffic.bind(model)
+    ego = Vehicle(model, prefix="ego/")
+    start = composed.road_map.lanes[composed.start_lane]
+    x, y = start.position(10.0)
+    ego.reset(physics.raw_data, float(x), float(y), float(start.heading(10.0)))
+    traffic.reset(np.random.default_rng(seed))
+    physics.substep_interval = max(1, int(round(traffic.config.substep / physics.timestep())))
+    physics.substep_callback = lambda ph, dt: traffic.advance(dt, None, ph.raw_data)
+    n_sub = int(round(control_period / physics.timestep()))
+    steps = int(round(seconds / control_period))
+    traffic.cpu_time = 0.0
+    start_wall = time.perf_counter()
+    for _ in range(steps):
+        ego.apply(physics.raw_data, 0.0, 0.0, 1.0)
+        physics.step(n_sub)
+    wall = time.perf_counter() - start_wall
+    share = traffic.cpu_time / wall
+    n = traffic.n
+    return (f"traffic on the concatenated map ({n} road users, default traffic): {1e3 * wall / steps:.2f} ms per "
+            f"{control_period:g} s control step (physics {physics.timestep() * 1e3:g} ms + traffic), traffic "
+            f"{1e3 * traffic.cpu_time / steps:.2f} ms = {100 * share:.1f}% of it; {seconds / wall:.0f} simulated s "
+            "per wall s")
+
+
 def report(results: dict[str, list[dict]], minutes: float, seeds: int) -> str:
     lines = [
         "# Urban traffic at the default density",
@@ -125,7 +164,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, default=5, help="seeds 0..N-1")
     parser.add_argument("--maps", nargs="*", default=list(MAPS), choices=list(MAPS))
     parser.add_argument("--out", default=None, help="write the markdown report here")
+    parser.add_argument("--bench", action="store_true", help="only the traffic cost in a MuJoCo world")
     args = parser.parse_args(argv)
+    if args.bench:
+        print(bench())
+        return 0
     results: dict[str, list[dict]] = {}
     total, done, start = len(args.maps) * args.seeds, 0, time.perf_counter()
     for name in args.maps:

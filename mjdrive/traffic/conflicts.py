@@ -165,91 +165,87 @@ def conflict_columns(t: Traffic, ctx: dict, f: dict) -> tuple[np.ndarray, np.nda
     priority agent behind it in that order would come closer than its headway."""
     table, cfg = t.approaches, t.config
     rows = f["rows"]
-    n_f = len(rows)
+    n_f, n_r = len(rows), len(table)
     offset, s, v, length = ctx["offset"], ctx["s"], ctx["v"], ctx["length"]
     front_own, ttz, inside = zone_state(t, ctx)
     front_o, _ = _positions(offset, s, length, table.other)
-    others = np.ones((n_f, len(s)), dtype=bool)
-    others[np.arange(n_f), rows] = False  # (F, A): every agent but the follower itself
-    others = others[:, :, None]
-    timed, zipped = table.timed[None], ~table.timed[None]  # (1, R)
+    # Only the (follower, approach) pairs on the follower's path matter: P pairs, each against every agent.
+    pf, pr = np.nonzero(np.isfinite(front_own[rows]))  # (P,) follower index, approach row
+    me = rows[pf]  # (P,) the follower's agent row
+    others = np.arange(len(s))[None] != me[:, None]  # (P, A)
+    tr = lambda a: a[:, pr].T  # noqa: E731  (A, R) -> (P, A)
+    front_me = front_own[me, pr]  # (P,) [m]
+    timed, gives_way = table.timed[pr], (table.yields | table.tie)[pr]
 
     # --- crossings (and merges inside junctions) ---------------------------------------------------------
-    v_me = np.maximum(v[rows], 0.0)[:, None]
-    length_me = length[rows][:, None]
-    to_clear = table.s_out[None] + length_me - front_own[rows]
-    to_clear = np.where(np.isfinite(to_clear), np.maximum(to_clear, 0.0), 0.0)
-    t_clear = (np.sqrt(v_me**2 + 2 * CLEAR_ACCEL * to_clear) - v_me) / CLEAR_ACCEL  # (F, R) [s]
+    v_me, length_me = np.maximum(v[me], 0.0), length[me]
+    to_clear = np.maximum(table.s_out[pr] + length_me - front_me, 0.0)
+    t_clear = (np.sqrt(v_me**2 + 2 * CLEAR_ACCEL * to_clear) - v_me) / CLEAR_ACCEL  # (P,) [s]
     # A priority agent stopped at its own give-way line before the zone waits too (it will see the
     # follower committed): no conflict.
     held = (v[:, None] < HELD_SPEED) & (front_o <= table.other_stop[None] + COMMITTED) & (
         table.other_stop[None] - front_o < HELD_DISTANCE)  # (A, R)
     # Impatience: the critical gap shrinks to half over `impatience` seconds of waiting.
-    waited = np.append(t.stopped_time, 0.0)[np.minimum(rows, t.nv)]  # (F,) [s] (the ego: never)
-    critical = cfg.critical_gap_crossing * np.maximum(0.5, 1.0 - 0.5 * waited / cfg.impatience)[:, None]
-    soon = (others & ~held[None] & (ttz[None] < (t_clear + critical)[:, None, :])).any(axis=1)
+    waited = np.append(t.stopped_time, 0.0)[np.minimum(me, t.nv)]  # (P,) [s] (the ego: never)
+    critical = cfg.critical_gap_crossing * np.maximum(0.5, 1.0 - 0.5 * waited / cfg.impatience)
+    soon = (others & ~tr(held) & (tr(ttz) < (t_clear + critical)[:, None])).any(axis=1)  # (P,)
     # Occupied: someone from the other lane is committed to the zone (past its give-way line) or in it. A
     # vehicle not yet committed waits at its give-way line for either; a committed one stops at the zone's
     # edge only for a vehicle physically in it (committed vehicles never wait for each other's promises,
     # which could go round in a circle).
     in_zone = inside & (front_o > table.o_in[None])  # (A, R) physically in it
-    promised = (others & inside[None]).any(axis=1)  # (F, R)
+    promised = (others & tr(inside)).any(axis=1)  # (P,)
     # A vehicle moving over between lanes is on neither lane's path near the zone: judge it by distance.
     changing = np.flatnonzero(t.active & (t.lc_dist < cfg.lane_change_length))
     if len(changing):
         xy = t._current_pos[t.vehicle_slots[changing], :2]
-        point = table.point  # (R, 2)
-        near = np.hypot(xy[:, None, 0] - point[None, :, 0], xy[:, None, 1] - point[None, :, 1]) < CHANGING_RADIUS
-        not_me = changing[None, :] != rows[:, None]  # (F, C)
-        promised |= (not_me[:, :, None] & near[None]).any(axis=1)
-    occupied = (others & in_zone[None]).any(axis=1)
+        point = table.point[pr]  # (P, 2)
+        near_point = np.hypot(xy[None, :, 0] - point[:, None, 0], xy[None, :, 1] - point[:, None, 1])
+        promised |= ((changing[None] != me[:, None]) & (near_point < CHANGING_RADIUS)).any(axis=1)
+    occupied = (others & tr(in_zone)).any(axis=1)
     # Ties: whoever reaches its give-way line sooner goes first (then the lower row): a strict order, so
     # waiting never goes round in a circle.
     pace = np.maximum(v, cfg.merge_speed)
-    t_line = np.maximum(table.stop[None] - front_own, 0.0) / pace[:, None]  # (A, R) [s] along own lane
+    t_line_me = np.maximum(table.stop[pr] - front_me, 0.0) / pace[me]  # (P,) [s]
     t_line_o = np.maximum(table.other_stop[None] - front_o, 0.0) / pace[:, None]  # (A, R) along the other
-    waiting_o = np.isfinite(front_o) & ~inside & (front_o <= table.o_in[None]) & ~np.isfinite(
-        offset[:, table.lane])
-    agent = np.arange(len(s))
-    earlier = (t_line_o[None] < t_line[rows][:, None, :]) | (
-        (t_line_o[None] == t_line[rows][:, None, :]) & (agent[None, :, None] < rows[:, None, None]))
-    first = (others & waiting_o[None] & earlier).any(axis=1)  # another agent goes first
-    wait_timed = timed & ((table.yields[None] & soon) | (table.tie[None] & first))
+    waiting_o = np.isfinite(front_o) & ~inside & (front_o <= table.o_in[None]) & ~np.isfinite(offset[:, table.lane])
+    earlier = (tr(t_line_o) < t_line_me[:, None]) | (
+        (tr(t_line_o) == t_line_me[:, None]) & (np.arange(len(s))[None] < me[:, None]))
+    first = (others & tr(waiting_o) & earlier).any(axis=1)  # another agent goes first
+    wait_timed = timed & ((table.yields[pr] & soon) | (table.tie[pr] & first))
 
     # --- merges: committed agents ahead are virtual leaders; outside junctions, a zipper ------------------
-    d_me = table.s_out[None] - front_own[rows]  # (F, R) [m] my front bumper to the merge point
+    d_me = table.s_out[pr] - front_me  # (P,) [m] my front bumper to the merge point
     d_them = table.o_out[None] - front_o  # (A, R) [m] theirs (inf off the other lane)
     near = np.isfinite(d_them) & (d_them > -length[:, None]) & (d_them < MERGE_RANGE)  # (A, R)
-    committed = inside  # past their give-way line (or in the zone)
-    courteous = f["courteous"][:, None] & table.courtesy[None] & (d_me < cfg.courtesy_range)  # (F, R)
-    gives_way = (table.yields | table.tie)[None]
-    zipper = zipped[:, None] & (gives_way[:, None] | courteous[:, None, :])  # (F, 1, R)
-    follows = committed[None] | zipper  # (F, A, R) committed agents ahead are leaders in every merge
-    ahead = others & table.merge[None, None] & near[None] & (d_them[None] < d_me[:, None, :]) & follows
-    ahead &= np.isfinite(d_me)[:, None, :]
-    spacing = np.where(ahead, d_me[:, None, :] - np.where(ahead, d_them[None], 0.0) - length[None, :, None], np.inf)
-    leader_gap = spacing.min(axis=1)  # (F, R)
-    nearest = np.argmin(spacing, axis=1)  # (F, R) the virtual leader
-    leader_speed = v[nearest]
-    behind = others & zipped[:, None] & near[None] & (d_them[None] >= d_me[:, None, :]) & np.isfinite(d_me)[:, None, :]
-    room = np.where(behind, d_them[None] - np.where(behind, d_me[:, None, :], 0.0) - length_me[:, :, None], np.inf)
-    needed = cfg.min_gap + v[None, :, None] * cfg.critical_gap_merge  # (1, A, 1) [m] the agent behind's headway
+    courteous = f["courteous"][pf] & table.courtesy[pr] & (d_me < cfg.courtesy_range)  # (P,)
+    zipper = ~timed & (gives_way | courteous)  # (P,)
+    follows = tr(inside) | zipper[:, None]  # (P, A): committed agents ahead are leaders in every merge
+    d_them_p = tr(d_them)
+    ahead = others & table.merge[pr][:, None] & tr(near) & (d_them_p < d_me[:, None]) & follows
+    spacing = np.where(ahead, d_me[:, None] - np.where(ahead, d_them_p, 0.0) - length[None], np.inf)  # (P, A)
+    leader_gap = spacing.min(axis=1) if len(s) else np.full(len(pf), np.inf)
+    leader_speed = v[np.argmin(spacing, axis=1)] if len(s) else np.zeros(len(pf))
+    behind = others & ~timed[:, None] & tr(near) & (d_them_p >= d_me[:, None])
+    room = np.where(behind, d_them_p - d_me[:, None] - length_me[:, None], np.inf)  # (P, A) [m]
+    needed = cfg.min_gap + v[None] * cfg.critical_gap_merge  # (1, A) [m] the agent behind's headway
     # A courteous agent behind keeps its distance to the follower (a virtual leader of its own): no conflict.
-    letting_in = courteous_agents(t, ctx)[None, :, None] & table.courtesy[None, None]
-    cut_off = (behind & ~letting_in & (room < needed)).any(axis=1)  # (F, R)
-    wait_merge = zipped & table.yields[None] & cut_off
+    letting_in = courteous_agents(t, ctx)[None] & table.courtesy[pr][:, None]
+    cut_off = (behind & ~letting_in & (room < needed)).any(axis=1)  # (P,)
+    wait_merge = ~timed & table.yields[pr] & cut_off
 
-    # --- stop lines ----------------------------------------------------------------------------------------
-    stop = table.stop[None] - front_own[rows]  # (F, R) [m] to the give-way line
-    holding = (stop > -COMMITTED) & np.isfinite(stop)  # not yet committed
-    edge = table.s_in[None] - EDGE_MARGIN - front_own[rows]  # (F, R) [m] to the zone's edge
-    before_edge = (edge > -COMMITTED) & np.isfinite(edge)
+    # --- stop lines, back to (F, R) columns ------------------------------------------------------------------
+    stop = table.stop[pr] - front_me  # (P,) [m] to the give-way line
+    holding = stop > -COMMITTED  # not yet committed
+    edge = table.s_in[pr] - EDGE_MARGIN - front_me  # (P,) [m] to the zone's edge
     stops = np.minimum(np.where((wait_timed | wait_merge | (timed & promised)) & holding, stop, np.inf),
-                       np.where(timed & occupied & before_edge, edge, np.inf))
-    to_line = np.where(gives_way & holding, stop, np.inf).min(axis=1) if len(table) else np.full(n_f, np.inf)
-    gap = np.concatenate([stops, leader_gap], axis=1)
-    lead = np.concatenate([np.zeros_like(stops), leader_speed], axis=1)
-    s0 = np.concatenate([np.full(len(table), cfg.stop_gap), np.full(len(table), cfg.min_gap)])
+                       np.where(timed & occupied & (edge > -COMMITTED), edge, np.inf))
+    gap = np.full((n_f, 2 * n_r), np.inf)
+    lead = np.zeros((n_f, 2 * n_r))
+    gap[pf, pr], gap[pf, n_r + pr], lead[pf, n_r + pr] = stops, leader_gap, leader_speed
+    to_line = np.full(n_f, np.inf)
+    np.minimum.at(to_line, pf, np.where(gives_way & holding, stop, np.inf))
+    s0 = np.concatenate([np.full(n_r, cfg.stop_gap), np.full(n_r, cfg.min_gap)])
     return gap, lead, s0, to_line
 
 

@@ -106,6 +106,8 @@ def accelerations(t: Traffic, f: dict, ctx: dict) -> np.ndarray:
     to_give_way = np.full(len(s), np.inf)  # [m] to the nearest give-way line of a conflict zone
     if t.approaches is not None and len(t.approaches):
         extra_gap, extra_lead, extra_s0, to_give_way = conflict_columns(t, ctx, f)
+        used = np.isfinite(extra_gap).any(axis=0)  # most approaches are on nobody's path right now
+        extra_gap, extra_lead, extra_s0 = extra_gap[:, used], extra_lead[:, used], extra_s0[used]
         gap = np.concatenate([gap, extra_gap], axis=1)
         lead = np.concatenate([lead, extra_lead], axis=1)
         s0 = np.concatenate([s0, extra_s0])
