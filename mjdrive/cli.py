@@ -382,9 +382,12 @@ def cmd_eval(args) -> int:
 
 
 def cmd_ensemble(args) -> int:
-    from agents.ensemble import ensemble_command
+    from mjdrive.progress import Starting
 
-    return ensemble_command(args)
+    with Starting("mjdrive ensemble: loading torch and the members", terminal_only=True):
+        from agents.ensemble import ensemble_command
+
+        return ensemble_command(args)
 
 
 def build_parser() -> argparse.ArgumentParser:
