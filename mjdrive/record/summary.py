@@ -1,4 +1,4 @@
-"""One summary schema for `mjdrive run` (summary.json), `mjdrive eval` (OUT.json) and `mjdrive logs`
+"""One summary schema for `mjdrive run` and `drive` (summary.json), `mjdrive eval` (OUT.json) and `mjdrive logs`
 (its table, and `--out FILE.json`): a header naming the command, task, policy and seeds, one row per
 episode with units in the field names, and the means over the rows. docs/summary.md describes it."""
 
