@@ -19,6 +19,7 @@ Sections (--sections, all by default):
   throughput  raw `mj_step` of the d210 and the straight-route models, and the env (features) on
               waypoints/straight and roundabout/d210, every timestep interleaved in rounds (best round kept),
               as simulated seconds per wall second and as ratios to the 2 ms figure.
+  profile     (only when named) one env step of roundabout/d210 at the default step, part by part.
 """
 
 from __future__ import annotations
@@ -346,11 +347,82 @@ def throughput_section(dts: list[float], seconds: float, rounds: int) -> list[st
     return lines
 
 
+def profile(dt: float, steps: int) -> dict[str, float]:
+    """Wall time [ms] per env step of roundabout/d210 (features, the ego braking at its yield line) by part:
+    each part's functions are wrapped with a timer on this env only."""
+    env = load("roundabout", "d210", dt)
+    env.reset()
+    task, traffic, physics = env.task, env.task.traffic, env.physics
+    spent: dict[str, float] = {}
+
+    def timed(owner, name: str, key: str) -> None:
+        inner = getattr(owner, name)
+        spent[key] = 0.0
+
+        def wrapper(*args, **kwargs):
+            start = time.perf_counter()
+            out = inner(*args, **kwargs)
+            spent[key] += time.perf_counter() - start
+            return out
+
+        setattr(owner, name, wrapper)
+
+    timed(task, "before_step", "task: action to controls")
+    timed(task, "after_step", "task: ego state, sensors, reward")
+    timed(task, "get_observation", "task: observation")
+    timed(traffic, "_decide", "traffic: decisions (every 0.6 s)")
+    timed(traffic, "advance", "traffic: advance (all)")
+    timed(task.collision_sensor, "sample", "contact samples (every 0.02 s)")
+    timed(physics, "step", "physics.step (all)")
+    hold = np.array([0.0, 0.0, 1.0])
+    for _ in range(20):
+        env.step(hold)
+    spent.update({key: 0.0 for key in spent})
+    start = time.perf_counter()
+    for _ in range(steps):
+        if env.step(hold).last():
+            env.reset()
+    total = time.perf_counter() - start
+    model = physics.model.ptr
+    data = mujoco.MjData(model)
+    start = time.perf_counter()
+    for _ in range(steps):
+        mujoco.mj_step(model, data, env._n_sub_steps)
+    raw = time.perf_counter() - start
+    ms = {key: 1e3 * value / steps for key, value in spent.items()}
+    out = {"env step": 1e3 * total / steps, "raw mj_step of a control step": 1e3 * raw / steps}
+    out["traffic: motion and mocap writes"] = ms["traffic: advance (all)"] - ms["traffic: decisions (every 0.6 s)"]
+    out["traffic: decisions (every 0.6 s)"] = ms["traffic: decisions (every 0.6 s)"]
+    out["contact samples (every 0.02 s)"] = ms["contact samples (every 0.02 s)"]
+    out["physics chunks beyond raw mj_step (callbacks, cache)"] = (
+        ms["physics.step (all)"] - out["raw mj_step of a control step"] - ms["traffic: advance (all)"]
+        - ms["contact samples (every 0.02 s)"])
+    for key in ("task: action to controls", "task: ego state, sensors, reward", "task: observation"):
+        out[key] = ms[key]
+    out["dm_control's step beyond these"] = out["env step"] - ms["physics.step (all)"] - sum(
+        ms[key] for key in ("task: action to controls", "task: ego state, sensors, reward", "task: observation"))
+    return out
+
+
+def profile_section(dt: float, steps: int) -> list[str]:
+    r = profile(dt, steps)
+    log(f"profile dt={dt * 1e3:g} ms: {r['env step']:.3f} ms per step")
+    lines = [f"## One env step of roundabout/d210 at {dt * 1e3:g} ms, part by part", "",
+             f"{steps} steps (features, the ego braking at its yield line); each part timed by a wrapper on this env "
+             "(a wrapper adds ~1 us per call).", "", "| part | ms per env step | share of the env step |",
+             "| --- | ---: | ---: |"]
+    for key, value in r.items():
+        lines.append(f"| {key} | {value:.3f} | {value / r['env step']:.0%} |")
+    lines.append(f"| env/raw | {r['raw mj_step of a control step'] / r['env step']:.0%} | |")
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dts", nargs="+", type=float, default=[0.002, 0.003, 0.004, 0.005, 0.008, 0.01])
     parser.add_argument("--sections", nargs="+", default=["vehicle", "collision", "stability", "throughput"],
-                        choices=["vehicle", "collision", "stability", "throughput"])
+                        choices=["vehicle", "collision", "stability", "throughput", "profile"])
+    parser.add_argument("--profile-steps", type=int, default=3000)
     parser.add_argument("--stability-steps", type=int, default=100_000)
     parser.add_argument("--seconds", type=float, default=10.0, help="throughput: wall seconds per case")
     parser.add_argument("--rounds", type=int, default=5)
@@ -359,8 +431,8 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     lines = [f"# Physics step: measurements ({platform.machine()}, mujoco {mujoco.__version__})", "",
              "`python tools/physics_dt.py " + " ".join(sys.argv[1:] if argv is None else argv) + "`", ""]
-    task_dts = [dt for dt in args.dts if abs(CONTROL_DT / dt - round(CONTROL_DT / dt)) < 1e-6
-                and abs(CHUNK / dt - round(CHUNK / dt)) < 1e-6]  # the tasks need whole substeps
+    # the tasks need whole physics steps per traffic chunk (0.02 s) and per control step (0.1 s, 0.2 s)
+    task_dts = [dt for dt in args.dts if all(abs(p / dt - round(p / dt)) < 1e-6 for p in (CHUNK, 0.1, 0.2))]
     for section in args.sections:
         if section == "vehicle":
             lines += vehicle_section(args.dts) + [""]
@@ -370,6 +442,8 @@ def main(argv: list[str] | None = None) -> int:
             lines += stability_section(task_dts, args.stability_steps) + [""]
         elif section == "throughput":
             lines += throughput_section(task_dts, args.seconds, args.rounds) + [""]
+        elif section == "profile":
+            lines += profile_section(world.PHYSICS_TIMESTEP, args.profile_steps) + [""]
     lines.append(f"Wall time {time.perf_counter() - start:.0f} s.")
     text = "\n".join(lines) + "\n"
     if args.out:
