@@ -47,3 +47,22 @@ def test_overlay_draws_text_and_legend_and_the_last_frame_holds_the_outcome(tmp_
 
     assert imageio.get_reader(tmp_path / "v.mp4").count_frames() == 1 + video.fps  # the outcome held 1 s
     env.close()
+
+
+def test_replay_video_has_a_frame_per_step_and_holds_the_outcome(tmp_path):
+    import imageio.v2 as imageio
+
+    from mjdrive.record import RecordEpisodes
+    from mjdrive.record.replay import replay
+
+    env = RecordEpisodes(make_env("waypoints", "straight", time_limit=1.0), tmp_path)
+    env.reset(seed=2)
+    steps, done = 0, False
+    while not done:
+        *_, terminated, truncated, _ = env.step(np.array([0.5, 0.0, 0.0]))
+        steps, done = steps + 1, terminated or truncated
+    env.close()
+    result = replay(env.recorder.paths[-1], video=tmp_path / "replay.mp4")
+    assert result.match
+    fps = round(1.0 / env.unwrapped.dm_env.control_timestep())
+    assert imageio.get_reader(tmp_path / "replay.mp4").count_frames() == steps + fps  # + the outcome, held 1 s
