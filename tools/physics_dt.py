@@ -2,7 +2,7 @@
 and throughput at several physics timesteps, in one run (progress on stderr, a markdown report on stdout
 or --out).
 
-    python tools/physics_dt.py --dts 0.002 0.003 0.004 0.005 0.008 0.01 --out results/physics_dt_raw.md
+    python tools/physics_dt.py --dts 0.002 0.003 0.004 0.005 0.008 0.01 --out runs/physics_dt.md
 
 Sections (--sections, all by default):
   vehicle     for both cars, control at 20 Hz (the nearest whole number of steps): full braking from 50 km/h
