@@ -419,12 +419,16 @@ class EpisodeRecorder:
         if self._writer is None:
             return None
         info = getattr(task, "info", None) if task is not None else self._last_task_info
+        # mean speed as in the summary schema (mjdrive.record.summary): distance / time when the task says them
+        distance, elapsed = (info or {}).get("distance"), (info or {}).get("elapsed_time")
+        mean_speed = (float(distance) / float(elapsed) if distance is not None and elapsed
+                      else self._speed_sum / max(self._steps, 1))
         summary = {
             "task": self.spec.name, "episode": self.episode, "seed": self._seed, "steps": self._steps,
             "return": self._return, "terminated": bool(terminated), "truncated": bool(truncated),
-            "interrupted": bool(interrupted), "sim_time": self._prev_time,
-            "mean_speed": self._speed_sum / max(self._steps, 1), "max_abs_jerk": self._max_jerk,
-            "max_abs_accel_lat": self._max_accel_lat,
+            "interrupted": bool(interrupted), "sim_time": self._prev_time,  # [s]
+            "mean_speed_m_s": mean_speed, "max_abs_jerk_m_s3": self._max_jerk,
+            "max_abs_accel_lat_m_s2": self._max_accel_lat,
             "info": {str(k): _jsonable(v) for k, v in (info or {}).items()},
         }
         ns = self._t0 + _ns(self._prev_time)
