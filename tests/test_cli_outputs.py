@@ -189,3 +189,15 @@ def test_observation_spaces_are_finite_and_hold_a_reckless_drive(env_id):
         if terminated or truncated:
             observation, _ = env.reset()
     env.close()
+
+
+def test_ppo_training_prints_no_rsl_rl_model_dump_and_explains_its_rounded_steps(tmp_path, capfd):
+    from agents.common import apply_overrides, load_config
+    from agents.train import train
+
+    config = apply_overrides(load_config("ppo"), ["steps=40", "num_envs=2", "rsl_rl.num_steps_per_env=32",
+                                                  "tensorboard=false", "torch_threads=1", "nthread=1"])
+    train(config, tmp_path, progress=False)
+    out, _ = capfd.readouterr()
+    assert "Actor Model" not in out and "Resolved observation sets" not in out, out
+    assert "PPO collects rollouts of 2 envs x 32 steps = 64: training for 64 env steps (asked 40)" in out
