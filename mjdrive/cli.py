@@ -54,6 +54,13 @@ def positive_float(text: str) -> float:
     return value
 
 
+def non_negative_float(text: str) -> float:
+    """argparse type: a finite number >= 0."""
+    if text.strip() in ("0", "0.0"):
+        return 0.0
+    return positive_float(text)
+
+
 def existing_file(text: str) -> str:
     """argparse type: a path to an existing file."""
     path = Path(text)
@@ -240,6 +247,8 @@ def cmd_run(args) -> int:
         video = EpisodeVideo(env, out / f"episode_{episode:03d}.mp4") if args.video else None
         total_reward, steps = 0.0, 0
         overlay = Overlay(info=info)
+        control_dt = env.unwrapped.dm_env.control_timestep()  # [s]
+        next_tick = time.perf_counter()
         with Progress(desc=f"episode {episode + 1}/{args.episodes} (seed {seed})", unit="step",
                       total=env.unwrapped.max_episode_steps, leave=False) as bar:
             while True:
@@ -250,6 +259,9 @@ def cmd_run(args) -> int:
                 steps += 1
                 overlay = Overlay(steps, reward, total_reward, info)
                 bar.update()
+                if args.realtime:  # paced, e.g. to watch it live in Foxglove
+                    next_tick += control_dt / args.realtime
+                    time.sleep(max(0.0, next_tick - time.perf_counter()))
                 if terminated or truncated:
                     break
         if video:
@@ -418,6 +430,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="log the front camera every K-th step (0: no images)")
     run.add_argument("--record-image-format", default="jpeg", choices=("jpeg", "png"),
                      help="compression of the logged camera images")
+    run.add_argument("--realtime", type=non_negative_float, default=0.0, metavar="X",
+                     help="run at X simulated seconds per wall second (1: as it happens, to watch with --live; "
+                          "0: as fast as it goes)")
     run.add_argument("--sensors", type=sensor_names, default=(), metavar="NAMES",
                      help="extra observations, recorded in the logs: depth,segmentation,range (comma-separated)")
     add_live_arguments(run)
