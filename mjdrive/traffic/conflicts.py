@@ -35,8 +35,7 @@ EDGE_MARGIN = 0.5  # [m] before an occupied zone
 MERGE_RANGE = 60.0  # [m] agents farther from a merge point than this do not take part in the zipper
 CLEAR_ACCEL = 2.0  # [m/s^2] a yielding vehicle's acceleration through the zone, for its time to clear it
 CHANGING_RADIUS = 8.0  # [m] a vehicle changing lane this close to a zone's point occupies it
-HELD_SPEED = 1.0  # [m/s] a vehicle slower than this within HELD_DISTANCE of its give-way line is waiting there
-HELD_DISTANCE = 5.0  # [m]
+HELD_SPEED = 1.0  # [m/s] a vehicle slower than this before its give-way line is waiting
 
 
 @dataclass(frozen=True)
@@ -104,7 +103,7 @@ class ApproachTable:
             # Inside a junction nobody stops halfway: the stop line of every zone on a junction lane is its
             # entry (the give-way line), and a vehicle that has entered clears the junction.
             junction = np.array([road_map.lanes[int(lane)].in_junction for lane in table.lane], dtype=bool)
-            stops = np.where(junction, np.minimum(stops, -STOP_MARGIN), stops)
+            stops = np.where(junction, -STOP_MARGIN, stops)
             object.__setattr__(table, "stop", np.minimum(table.stop, stops))
         return table
 
@@ -181,10 +180,9 @@ def conflict_columns(t: Traffic, ctx: dict, f: dict) -> tuple[np.ndarray, np.nda
     v_me, length_me = np.maximum(v[me], 0.0), length[me]
     to_clear = np.maximum(table.s_out[pr] + length_me - front_me, 0.0)
     t_clear = (np.sqrt(v_me**2 + 2 * CLEAR_ACCEL * to_clear) - v_me) / CLEAR_ACCEL  # (P,) [s]
-    # A priority agent stopped at its own give-way line before the zone waits too (it will see the
-    # follower committed): no conflict.
-    held = (v[:, None] < HELD_SPEED) & (front_o <= table.other_stop[None] + COMMITTED) & (
-        table.other_stop[None] - front_o < HELD_DISTANCE)  # (A, R)
+    # A priority agent standing before its own give-way line (waiting there, or queued behind one that
+    # waits) will see the follower committed when it gets there: no conflict.
+    held = (v[:, None] < HELD_SPEED) & (front_o <= table.other_stop[None] + COMMITTED)  # (A, R)
     # Impatience: the critical gap shrinks to half over `impatience` seconds of waiting.
     waited = np.append(t.stopped_time, 0.0)[np.minimum(me, t.nv)]  # (P,) [s] (the ego: never)
     critical = cfg.critical_gap_crossing * np.maximum(0.5, 1.0 - 0.5 * waited / cfg.impatience)
@@ -229,9 +227,12 @@ def conflict_columns(t: Traffic, ctx: dict, f: dict) -> tuple[np.ndarray, np.nda
     behind = others & ~timed[:, None] & tr(near) & (d_them_p >= d_me[:, None])
     room = np.where(behind, d_them_p - d_me[:, None] - length_me[:, None], np.inf)  # (P, A) [m]
     needed = cfg.min_gap + v[None] * cfg.critical_gap_merge  # (1, A) [m] the agent behind's headway
-    # A courteous agent behind keeps its distance to the follower (a virtual leader of its own): no conflict.
-    letting_in = courteous_agents(t, ctx)[None] & table.courtesy[pr][:, None]
-    cut_off = (behind & ~letting_in & (room < needed)).any(axis=1)  # (P,)
+    # Only the nearest agent behind matters (the follower's follower after the merge; the rest queue behind
+    # it), and not if it is courteous: it keeps its distance to the follower, a virtual leader of its own.
+    nearest = np.argmin(room, axis=1) if len(s) else np.zeros(len(pf), dtype=np.int64)  # (P,)
+    room_nearest = room[np.arange(len(pf)), nearest] if len(s) else np.full(len(pf), np.inf)
+    letting_in = courteous_agents(t, ctx)[nearest] & table.courtesy[pr]
+    cut_off = np.isfinite(room_nearest) & ~letting_in & (room_nearest < needed[0, nearest])  # (P,)
     wait_merge = ~timed & table.yields[pr] & cut_off
 
     # --- stop lines, back to (F, R) columns ------------------------------------------------------------------

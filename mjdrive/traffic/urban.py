@@ -28,7 +28,7 @@ SPAWN_S = 8.0  # [m] along the lane
 DEFAULT_COUNTS: dict[str, dict[str, int]] = {
     "roundabout": {"car": 10, "motorcycle": 2},
     "overtaking_road": {"car": 10, "motorcycle": 2},
-    "crossroad": {"car": 8, "motorcycle": 2},
+    "crossroad": {"car": 6, "motorcycle": 1},
     "merge_road": {"car": 10, "motorcycle": 2},
     "roundabout+overtaking_road+crossroad+merge_road": {"car": 26, "motorcycle": 6},
 }
