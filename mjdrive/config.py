@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import enum
 import math
 import types
 import typing
@@ -177,6 +178,12 @@ def _convert(value: Any, tp: Any, spec: Spec) -> Any:
             except _Invalid as error:
                 raise _Invalid(f"[{key!r}]={_show(item)} {error}") from None
         return out
+    if isinstance(tp, type) and issubclass(tp, enum.Enum):
+        if isinstance(value, tp):
+            return value
+        if isinstance(value, str) and value.upper() in tp.__members__:
+            return tp[value.upper()]
+        raise _Invalid("must be one of " + ", ".join(repr(name.lower()) for name in tp.__members__))
     if isinstance(tp, type) and issubclass(tp, Config):
         if isinstance(value, tp):
             return value
@@ -276,6 +283,8 @@ class Config:
 
 
 def _default_text(value: Any) -> str:
+    if isinstance(value, enum.Enum):
+        return repr(value.name.lower())
     if isinstance(value, Config):
         return type(value).__name__ + "()"
     if isinstance(value, float):
