@@ -36,6 +36,8 @@ MERGE_RANGE = 60.0  # [m] agents farther from a merge point than this do not tak
 CLEAR_ACCEL = 2.0  # [m/s^2] a yielding vehicle's acceleration through the zone, for its time to clear it
 CHANGING_RADIUS = 8.0  # [m] a vehicle changing lane this close to a zone's point occupies it
 HELD_SPEED = 1.0  # [m/s] a vehicle slower than this before its give-way line is waiting
+AT_LINE = 3.0  # [m] a waiting vehicle this close to its give-way line is first in line
+TURN_WAIT = 3.0  # [s] a priority vehicle first in line this long gets its turn
 
 
 @dataclass(frozen=True)
@@ -181,8 +183,12 @@ def conflict_columns(t: Traffic, ctx: dict, f: dict) -> tuple[np.ndarray, np.nda
     to_clear = np.maximum(table.s_out[pr] + length_me - front_me, 0.0)
     t_clear = (np.sqrt(v_me**2 + 2 * CLEAR_ACCEL * to_clear) - v_me) / CLEAR_ACCEL  # (P,) [s]
     # A priority agent standing before its own give-way line (waiting there, or queued behind one that
-    # waits) will see the follower committed when it gets there: no conflict.
-    held = (v[:, None] < HELD_SPEED) & (front_o <= table.other_stop[None] + COMMITTED)  # (A, R)
+    # waits) will see the follower committed when it gets there: no conflict; unless it has stood first at
+    # the line for TURN_WAIT already: then it is its turn (no stream of yielders starves it).
+    before_line = (v[:, None] < HELD_SPEED) & (front_o <= table.other_stop[None] + COMMITTED)  # (A, R)
+    at_line = table.other_stop[None] - front_o < AT_LINE
+    waited_long = np.append(t.stopped_time, 0.0)[:, None] >= TURN_WAIT  # (A, 1) (the ego: never)
+    held = before_line & ~(at_line & waited_long)
     # Impatience: the critical gap shrinks to half over `impatience` seconds of waiting.
     waited = np.append(t.stopped_time, 0.0)[np.minimum(me, t.nv)]  # (P,) [s] (the ego: never)
     critical = cfg.critical_gap_crossing * np.maximum(0.5, 1.0 - 0.5 * waited / cfg.impatience)
