@@ -81,6 +81,8 @@ class TrafficConfig(Config):
     pedestrian_wait: tuple[float, float] = param((2.0, 10.0), "wait at the kerb before looking for a gap "
                                                  "(uniform, min and max)", "s", ge=0.0, le=120.0)
     respawn: bool = param(True, "vehicles that left the map re-enter at the sources")
+    spawn_rate: float = param(0.0, "urban rules: each waiting vehicle re-enters at this rate (0: as soon as a "
+                              "source is clear)", "1/s", ge=0.0, le=10.0)
     critical_gap_crossing: float = param(2.0, "urban rules: a yielding vehicle crosses if every priority agent "
                                          "reaches the zone this long after it has cleared it", "s", ge=0.0, le=20.0)
     impatience: float = param(20.0, "urban rules: waiting this long halves a vehicle's critical gap", "s",

@@ -48,6 +48,8 @@ def spawn(t: Traffic) -> bool:
         clear &= np.hypot(place_xy[:, 0] - t.ego.x, place_xy[:, 1] - t.ego.y) >= cfg.spawn_clear
     pick = (t.rng.random(len(idle)) * len(lanes)).astype(np.int64)
     ok = clear[pick]
+    if t.urban and cfg.spawn_rate > 0:  # arrivals at random times (a Poisson demand), not back to back
+        ok &= t.intent_rng.random(len(idle)) < cfg.spawn_rate * cfg.decision_period
     if not ok.any():
         return False
     rows, src = idle[ok], pick[ok]

@@ -19,7 +19,8 @@ from mjdrive.traffic.model import Traffic
 from mjdrive.traffic.params import TrafficConfig, counts_to_kinds
 from mjdrive.traffic.spawning import SpawnPoints
 
-URBAN_CONFIG = TrafficConfig(lane_changes="intention", desired_speed=(5.0, 15.0))  # §5.3: 5-15 m/s
+URBAN_CONFIG = TrafficConfig(lane_changes="intention", desired_speed=(5.0, 15.0),  # §5.3: 5-15 m/s
+                             spawn_rate=0.2)  # [1/s] arrivals spread out: flows leave gaps
 SLOW_SPEED = (4.0, 6.0)  # [m/s] vehicles spawned in the right lane of the two-lane road
 FAST_SPEED = (11.0, 15.0)  # [m/s] ... and in its left lane
 SPAWN_S = 8.0  # [m] along the lane
@@ -28,7 +29,7 @@ SPAWN_S = 8.0  # [m] along the lane
 DEFAULT_COUNTS: dict[str, dict[str, int]] = {
     "roundabout": {"car": 10, "motorcycle": 2},
     "overtaking_road": {"car": 10, "motorcycle": 2},
-    "crossroad": {"car": 6, "motorcycle": 1},
+    "crossroad": {"car": 8, "motorcycle": 2},
     "merge_road": {"car": 10, "motorcycle": 2},
     "roundabout+overtaking_road+crossroad+merge_road": {"car": 26, "motorcycle": 6},
 }
