@@ -198,9 +198,11 @@ def test_nobody_vanishes_at_the_end_of_an_on_ramp():
 
 
 def test_concatenated_map_two_minutes_without_overlap_or_deadlock():
+    """No overlap, and nobody stands for a minute unless queued (a minor-road car at the crossroad may wait
+    half a minute for a gap: results/urban/traffic.md reports the longest waits over 10-minute runs)."""
     traffic = urban_traffic(concatenated())
     traffic.reset(np.random.default_rng(0))
     overlaps, worst, _ = free_run(traffic, 120.0)
-    assert overlaps == 0 and worst < 30.0
+    assert overlaps == 0 and worst < 60.0
     assert traffic.stats["spawned"] > 20
     assert set(np.unique(traffic.intention[traffic.active], axis=0).ravel()) <= {0, 1, 2}
