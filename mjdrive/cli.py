@@ -43,46 +43,43 @@ def int_at_least(low: int, high: int | None = None):
     return parse
 
 
-def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (value > 0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
-    return value
+def float_at_least(low: float, strict: bool):
+    """argparse type: a finite number > low (`strict`) or >= low."""
+    sign = ">" if strict else ">="
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not ((value > low if strict else value >= low) and value < float("inf")):
+            raise argparse.ArgumentTypeError(f"must be a finite number {sign} {low:g}, got {text}")
+        return value
+
+    return parse
 
 
-def non_negative_float(text: str) -> float:
-    """argparse type: a finite number >= 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (value >= 0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
-    return value
+positive_float = float_at_least(0.0, strict=True)
+non_negative_float = float_at_least(0.0, strict=False)
 
 
-def existing_file(text: str) -> str:
-    """argparse type: a path to an existing file."""
-    path = Path(text)
-    if not path.exists():
-        raise argparse.ArgumentTypeError(f"{text}: no such file")
-    if not path.is_file():
-        raise argparse.ArgumentTypeError(f"{text} is a folder, not a file")
-    return text
+def existing_path(kind: str):
+    """argparse type: a path to an existing `kind` ("file" or "folder")."""
+    other = "folder" if kind == "file" else "file"
+
+    def parse(text: str) -> str:
+        path = Path(text)
+        if not path.exists():
+            raise argparse.ArgumentTypeError(f"{text}: no such {kind}")
+        if path.is_file() != (kind == "file"):
+            raise argparse.ArgumentTypeError(f"{text} is a {other}, not a {kind}")
+        return text
+
+    return parse
 
 
-def existing_folder(text: str) -> str:
-    """argparse type: a path to an existing folder."""
-    path = Path(text)
-    if not path.exists():
-        raise argparse.ArgumentTypeError(f"{text}: no such folder")
-    if not path.is_dir():
-        raise argparse.ArgumentTypeError(f"{text} is a file, not a folder")
-    return text
+existing_file = existing_path("file")
+existing_folder = existing_path("folder")
 
 
 def task_name(text: str) -> str:
