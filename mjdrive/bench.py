@@ -46,7 +46,7 @@ def bench_parts(tasks: list[str], levels: list[str], highway: bool) -> int:
     return len(tasks) * TASK_PARTS + len(levels) * ROUNDABOUT_PARTS + (HIGHWAY_PARTS if highway else 0)
 
 
-def _rate(step: Callable[[], None], seconds: float) -> float:
+def calls_per_second(step: Callable[[], None], seconds: float) -> float:
     """Calls of `step` per wall second, over about `seconds`."""
     step()  # warm-up
     calls, start = 0, time.perf_counter()
@@ -113,7 +113,7 @@ def bench_task(name: str, seconds: float = 3.0, image_size: int = 128,
     for _ in range(ROUNDS):
         for key, (step, scale) in measurements.items():
             render_time[:] = [0.0, 0]
-            rate = _rate(step, seconds / ROUNDS) * scale
+            rate = calls_per_second(step, seconds / ROUNDS) * scale
             tick(f"{name}: {key}")
             if rate > result[key]:
                 result[key] = rate
@@ -203,18 +203,18 @@ def bench_roundabout(level: str, seconds: float = 3.0, image_size: int = 84,
     # Interleaved short rounds, best of each: robust to other processes sharing the machine.
     raw, envs, envs_2ms = [], [], []
     for _ in range(ROUNDS):
-        raw.append(_rate(lambda: mujoco.mj_step(model, data, n_sub), seconds / ROUNDS) * n_sub)
+        raw.append(calls_per_second(lambda: mujoco.mj_step(model, data, n_sub), seconds / ROUNDS) * n_sub)
         tick(f"roundabout/{level}: raw")
         envs.append(_timed_rate(step(env), seconds / ROUNDS, lambda: traffic.cpu_time))
         tick(f"roundabout/{level}: env")
-        envs_2ms.append(_rate(step(env_2ms), seconds / ROUNDS))
+        envs_2ms.append(calls_per_second(step(env_2ms), seconds / ROUNDS))
         tick(f"roundabout/{level}: env at {COMPARE_DT * 1e3:g} ms")
     result["raw_steps_per_s"] = max(raw)
     result["env_steps_per_s"], result["traffic_share"] = max(envs)
     result["env_2ms_steps_per_s"] = max(envs_2ms)
     camera_env = suite.load("roundabout", level, {"random": 0, "observation": "camera", "image_size": image_size})
     camera_env.reset()
-    result["camera_env_steps_per_s"] = _rate(step(camera_env), seconds)
+    result["camera_env_steps_per_s"] = calls_per_second(step(camera_env), seconds)
     tick(f"roundabout/{level}: camera env")
     for camera in camera_env.task.cameras.values():
         camera.close()
@@ -248,9 +248,9 @@ def bench_highway_env(seconds: float = 3.0, tick: Callable[[str], None] = _no_ti
 
     rates, ours_rates = [], []
     for _ in range(ROUNDS):
-        rates.append(_rate(go, seconds / ROUNDS))
+        rates.append(calls_per_second(go, seconds / ROUNDS))
         tick("highway-env roundabout-v0")
-        ours_rates.append(_rate(ours_go, seconds / ROUNDS))
+        ours_rates.append(calls_per_second(ours_go, seconds / ROUNDS))
         tick("mjdrive roundabout beside it")
     config = env.unwrapped.config
     result = {"steps_per_s": max(rates), "policy_dt": 1.0 / config["policy_frequency"],

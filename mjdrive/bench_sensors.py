@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from mjdrive.bench import ROUNDS, _rate
+from mjdrive.bench import ROUNDS, calls_per_second
 from mjdrive.envs.gym_env import SENSORS
 
 CONFIGS: dict[str, tuple[str, ...]] = {"none": (), **{name: (name,) for name in SENSORS}, "all": SENSORS}
@@ -37,7 +37,7 @@ def bench_sensors(name: str, seconds: float = 3.0, size: int = 64, rays: int = 3
     rates = {key: 0.0 for key in envs}
     for _ in range(ROUNDS):
         for key, env in envs.items():
-            rates[key] = max(rates[key], _rate(stepper(env), seconds / ROUNDS))
+            rates[key] = max(rates[key], calls_per_second(stepper(env), seconds / ROUNDS))
             tick(f"{name}: sensors {key}")
     for env in envs.values():
         env.close()

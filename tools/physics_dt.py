@@ -35,12 +35,11 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from mjdrive import world  # noqa: E402
-from mjdrive.sensors import CollisionSensor  # noqa: E402
-from mjdrive.traffic import ROAD_USER_TYPES, TrafficConfig, overlapping_pairs, slots  # noqa: E402
-from mjdrive.vehicle import VEHICLES, Vehicle  # noqa: E402
+from mjdrive import world
+from mjdrive.bench import calls_per_second
+from mjdrive.sensors import CollisionSensor
+from mjdrive.traffic import ROAD_USER_TYPES, TrafficConfig, overlapping_pairs, slots
+from mjdrive.vehicle import VEHICLES, Vehicle
 
 KMH = 1 / 3.6  # [m/s] per km/h
 CONTROL_DT = 0.05  # [s] 20 Hz commands in the vehicle section
@@ -284,18 +283,6 @@ def stability_section(dts: list[float], physics_steps: int) -> list[str]:
     return lines
 
 
-def _rate(step: Callable[[], None], seconds: float) -> float:
-    step()
-    calls, start = 0, time.perf_counter()
-    while True:
-        for _ in range(5):
-            step()
-        calls += 5
-        elapsed = time.perf_counter() - start
-        if elapsed >= seconds:
-            return calls / elapsed
-
-
 def throughput_section(dts: list[float], seconds: float, rounds: int) -> list[str]:
     hold = np.array([0.0, 0.0, 1.0])
     cruise = np.array([0.25, 0.0, 0.0])
@@ -330,7 +317,7 @@ def throughput_section(dts: list[float], seconds: float, rounds: int) -> list[st
     best = {key: 0.0 for key in cases}
     for r in range(rounds):
         for key, fn in cases.items():
-            best[key] = max(best[key], _rate(fn, seconds / rounds) * sim_per_call[key])
+            best[key] = max(best[key], calls_per_second(fn, seconds / rounds) * sim_per_call[key])
         log(f"throughput round {r + 1}/{rounds}")
     base = min(dts, key=lambda d: abs(d - 0.002))
     lines = ["## Throughput (simulated seconds per wall second, best of "
