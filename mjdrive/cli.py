@@ -289,13 +289,13 @@ def cmd_drive(args) -> int:
     from mjdrive.progress import note
     from mjdrive.record.summary import document
 
-    if not has_display():
-        raise ValueError("drive opens a window: set DISPLAY (or run it under `xvfb-run`)")
     domain, task = _split_task(args.task)
     task_kwargs = _parse_kwargs(args.task_kwarg)
     if args.live and not args.record:
         raise ValueError("--live streams the channels of the episode logs: drop --no-record")
     _check_kwargs(domain, task, task_kwargs)
+    if not has_display():
+        raise ValueError("drive opens a window: set DISPLAY (or run it under `xvfb-run`)")
     note(f"mjdrive drive: building {args.task} ...")
     env = make_env(domain, task, sensors=args.sensors, **task_kwargs)
     out = fresh_folder(args.out, args.overwrite)
