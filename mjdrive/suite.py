@@ -12,10 +12,10 @@ from collections.abc import Mapping
 from typing import Any
 
 from mjdrive.config import ConfigError
-from mjdrive.tasks import roundabout, waypoints
+from mjdrive.tasks import roundabout, urban, waypoints
 from mjdrive.tasks.base import DrivingConfig, DrivingEnvironment
 
-_DOMAINS = {"roundabout": roundabout, "waypoints": waypoints}
+_DOMAINS = {"roundabout": roundabout, "urban": urban, "waypoints": waypoints}
 
 
 def _get_tasks(tag: str | None) -> tuple[tuple[str, str], ...]:

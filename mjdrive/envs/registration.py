@@ -19,6 +19,12 @@ GYM_IDS: dict[str, tuple[str, str, dict]] = {
        for level in (120, 140, 160, 210)},
     **{f"mjdrive/Roundabout-D{level}-Camera-v0": ("roundabout", f"d{level}", {"observation": "camera"})
        for level in (120, 140, 160, 210)},
+    **{f"mjdrive/Urban-{name}-v0": ("urban", task, {"observation": "features"})
+       for name, task in (("Roundabout", "roundabout"), ("LaneChange", "lane_change"), ("Crossroad", "crossroad"),
+                          ("Merge", "merge"), ("Concatenated", "concatenated"))},
+    **{f"mjdrive/Urban-{name}-Camera-v0": ("urban", task, {"observation": "camera"})
+       for name, task in (("Roundabout", "roundabout"), ("LaneChange", "lane_change"), ("Crossroad", "crossroad"),
+                          ("Merge", "merge"), ("Concatenated", "concatenated"))},
 }
 
 

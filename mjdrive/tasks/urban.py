@@ -1,0 +1,311 @@
+"""Urban driving (study 002, §5.1): the scenarios of the concatenated route in traffic with intentions.
+
+Tasks: `urban/roundabout`, `urban/lane_change`, `urban/crossroad`, `urban/merge` (each scenario's map alone;
+the ego starts `start_before` m before the scenario) and `urban/concatenated` (the whole route of Fig. 8:
+roundabout, two-lane road, crossroad, merge). Maps: `roads.concatenated`; traffic: `traffic.urban` (urban
+rules, intentions, maximum speeds 5-15 m/s).
+
+Control at 10 Hz (throttle, steer, brake), fine enough for the comfort metrics (§5.2).
+Observations (`observation=`):
+  "features": ego (4,) in [0, 1]: speed / 15 m/s, (heading error + pi) / 2 pi, (lateral offset / off_route
+              + 1) / 2, route progress; scenario (5,): one-hot of follow, roundabout, lane_change, crossroad,
+              merge (the tactical trajectory at the ego's place, §4.1); adversaries (n, 4) in [0, 1], the
+              paper's matrix (§5.1.2): present, distance to the relevant point / 60 m (the conflict point
+              ahead on the route in the active scenario; the ego itself on the two-lane road and outside
+              every scenario), speed / 15 m/s, intention / 2 (the active scenario's), nearest first.
+  "camera":   image (84, 84, 3) uint8 from the front camera, and ego as above.
+Reward (§5.1.4): 1e-3 x speed [m/s] every step, +1 on arriving at the end of the route, -2 on a collision.
+Episodes end (terminated) on a collision, on arrival, or more than `off_route` m from the route's centre line;
+they are truncated at the time limit. `info`: success, collision, off_route, scenario, elapsed_time [s],
+average_speed [m/s], distance [m], steps, episode_reward, route_length [m], and at the end the comfort
+metrics (`mjdrive.comfort`, sampled at the control rate).
+"""
+
+from __future__ import annotations
+
+import collections
+import functools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from dm_control.mujoco import wrapper
+from dm_control.utils import containers
+from dm_env import specs
+
+from mjdrive import world
+from mjdrive.comfort import ComfortMeter
+from mjdrive.config import ConfigError, param
+from mjdrive.roads import Lane
+from mjdrive.roads.ports import ComposedMap
+from mjdrive.roads.urban import FOLLOW, UrbanRoute, concatenated, route_offsets, route_through
+from mjdrive.sensors import wrap_angle
+from mjdrive.tasks.base import (
+    DrivingConfig,
+    DrivingEnvironment,
+    DrivingTask,
+    Physics,
+    RoadUsers,
+    configured_task,
+    environment_config,
+)
+from mjdrive.tasks.roundabout import RouteFrame
+from mjdrive.traffic import KIND_NAMES, EgoState, TrafficConfig, counts_to_kinds, slots
+from mjdrive.traffic.intentions import SCENARIOS as INTENTION_SCENARIOS
+from mjdrive.traffic.urban import URBAN_CONFIG, default_counts, urban_traffic
+
+SUITE = containers.TaggedTasks()
+
+CONTROL_TIMESTEP = 0.1  # [s] 10 Hz
+SCENARIOS = (FOLLOW, "roundabout", "lane_change", "crossroad", "merge")  # the scenario one-hot, in order
+PIECES = {"roundabout": ("roundabout",), "lane_change": ("road",), "crossroad": ("crossroad",),
+          "merge": ("merge",), "concatenated": ("roundabout", "road", "crossroad", "merge")}
+SPEED_SCALE = 15.0  # [m/s] speeds normalised by this (§5.3's top speed)
+DISTANCE_SCALE = 60.0  # [m] adversary distances normalised by this (farther ones: 1)
+SPEED_REWARD = 1e-3  # k_v per m/s (§5.1.4)
+ARRIVAL_REWARD = 1.0
+COLLISION_REWARD = -2.0
+ARRIVAL_MARGIN = 5.0  # [m] before the route's end counts as arrived
+ADVERSARY_COLUMNS = 4  # present, distance, speed, intention
+
+
+@dataclass(frozen=True)
+class UrbanConfig(DrivingConfig):
+    """The urban tasks' keywords."""
+
+    time_limit: float = param(60.0, "episode length, then truncation", "s", gt=0.0, le=3600.0)
+    adversaries: int = param(6, "n, adversaries in the features observation", ge=1, le=32)
+    start_before: float = param(25.0, "the ego starts this far before its scenario (scenario tasks)", "m",
+                                ge=5.0, le=200.0)
+    warmup: float = param(10.0, "traffic simulated before the episode starts", "s", ge=0.0, le=120.0)
+    off_route: float = param(4.0, "distance from the route's centre line that ends the episode", "m",
+                             gt=0.0, le=20.0)
+    road_users: dict[str, int] | None = param(None, "road users by kind, overriding the map's default",
+                                              ge=0, le=100, keys=tuple(k for k in KIND_NAMES if k != "pedestrian"))
+    traffic_config: TrafficConfig = param(URBAN_CONFIG, "traffic behaviour constants (a dict of its keywords)")
+    image_size: int = param(84, "side of the square camera image", "px", ge=16, le=512)
+
+    def check(self) -> None:
+        if self.road_users is not None and sum(self.road_users.values()) > 100:
+            raise ConfigError(f"road_users={self.road_users}: at most 100 in all")
+
+
+class UrbanTask(DrivingTask):
+    """Drive the route (or one scenario of it) to its end in traffic (§5.1 reward)."""
+
+    def __init__(self, model, route: UrbanRoute, kinds: list[str], scenario: str, config: UrbanConfig):
+        super().__init__(model, route.road_map, config.vehicle, config.random)
+        self.config = config
+        self.observation = config.observation
+        self.urban = route
+        self.scenario = scenario
+        self.route = list(route.route)  # lane ids (scripted drivers read them)
+        self.traffic = urban_traffic(route.composed, counts=collections.Counter(kinds),
+                                     config=config.traffic_config)
+        self.traffic.bind(model)
+        self.traffic.set_ego_route(route.route)
+        self.route_lane = Lane(np.asarray(route.polyline), name="route")
+        self.route_frame = RouteFrame(self.route_lane.centre)
+        self.route_starts = route_offsets(route.road_map, route.route)  # [m] along the route
+        self.route_end = float(self.route_frame.s0[-1] + self.route_frame.length[-1])  # [m]
+        self.start_s = 0.0 if scenario == "concatenated" else max(
+            0.0, route.tactical.interval(scenario)[0] - config.start_before)
+        self.comfort = ComfortMeter()
+        # the conflict points ahead on the route, by the scenario they lie in
+        rc = route.route_conflicts
+        self._points = np.asarray(route.conflicts.point)[rc.zone] if len(rc) else np.zeros((0, 2))
+        self._point_s = np.asarray(rc.s_point, dtype=float)
+        self._point_scenario = np.array([route.tactical.scenario_at(s) for s in self._point_s])
+
+    # --- episode ----------------------------------------------------------------------------------------
+    def initialize_episode(self, physics: Physics) -> None:
+        x, y = self.route_lane.position(self.start_s)
+        self.vehicle.reset(physics.raw_data, float(x), float(y), float(self.route_lane.heading(self.start_s)))
+        self.route_frame(np.array([[x, y]]), full=True)
+        self.route_s, self.lane_offset, self.xy = self.start_s, 0.0, np.array([x, y], dtype=float)
+        self._ego_fn = functools.partial(self.ego_state, physics)
+        rng = np.random.default_rng(self.random.randint(2**31))
+        self.traffic.reset(rng, self.ego_state(physics), warmup=self.config.warmup)
+        self.traffic.write(physics.raw_data)
+        self.reset_safety_sensors(physics)
+        self._update_ego(physics)
+        self.comfort.reset()
+        self._sample_comfort(physics)
+        self.info = {
+            "success": False, "collision": False, "off_route": False, "physics_error": None,
+            "scenario": self.active_scenario(), "elapsed_time": 0.0, "average_speed": 0.0, "distance": 0.0,
+            "steps": 0, "episode_reward": 0.0, "route_length": self.route_end - ARRIVAL_MARGIN - self.start_s,
+        }
+        self._step_reward = 0.0
+        self._ended = False
+        self.reward_terms = {}
+
+    def substep_period(self) -> float:
+        """[s] between substeps: the traffic's pose period (mocap poses written and contacts sampled)."""
+        return self.traffic.config.substep
+
+    def substep(self, physics: Physics, dt: float) -> None:
+        """Physics.substep_callback: sample the ego's contacts, then move the traffic."""
+        data = physics.raw_data
+        self.collision_sensor.sample(data)
+        self.traffic.advance(dt, self._ego_fn, data)
+
+    def ego_state(self, physics: Physics) -> EgoState:
+        """The ego for traffic: pose, speed, and its place on the route's lanes (when on them)."""
+        x, y, yaw = self.vehicle.pose(physics.raw_data)
+        speed = self.vehicle.speed(physics.raw_data)
+        path, s_lane = None, 0.0
+        if abs(self.lane_offset) <= 0.5 * self.route_lane.width:
+            k = int(np.searchsorted(self.route_starts, self.route_s, side="right") - 1)
+            path = np.array(self.urban.route[k:], dtype=np.int64)
+            s_lane = float(self.route_s - self.route_starts[k])
+        return EgoState(x, y, yaw, speed, self.params.length, self.params.width, path, s_lane)
+
+    def _update_ego(self, physics: Physics) -> None:
+        x, y, yaw, self.speed, _, self.yaw_rate = self.vehicle.planar_state(physics.raw_data)
+        self.xy, self.yaw = np.array([x, y]), yaw
+        s, d = self.route_frame(self.xy[None])
+        self.route_s, self.lane_offset = float(s[0]), float(d[0])  # [m]
+        tangent = self.route_frame.tangent[self.route_frame.segment]
+        self.heading_error = float(wrap_angle(yaw - math.atan2(tangent[1], tangent[0])))  # [rad]
+
+    def _sample_comfort(self, physics: Physics) -> None:
+        vx, vy = self.vehicle.velocity_body(physics.raw_data)
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        self.comfort.add(np.array([c * vx - s * vy, s * vx + c * vy]), self.yaw)
+
+    def active_scenario(self) -> str:
+        """The tactical trajectory's scenario at the ego's place on the route."""
+        return self.urban.tactical.scenario_at(self.route_s)
+
+    def after_step(self, physics: Physics) -> None:
+        previous_xy = self.xy
+        self._update_ego(physics)
+        self._sample_comfort(physics)
+        info = self.info
+        collision = self.collision_sensor.collided(physics.raw_data)
+        arrived = self.route_s >= self.route_end - ARRIVAL_MARGIN
+        off_route = abs(self.lane_offset) > self.config.off_route
+        info["collision"] |= collision
+        info["off_route"] |= off_route and not collision
+        info["success"] = arrived and not info["collision"]
+        info["scenario"] = self.active_scenario()
+        info["steps"] += 1
+        info["elapsed_time"] = info["steps"] * CONTROL_TIMESTEP
+        info["distance"] += float(np.hypot(*(self.xy - previous_xy)))
+        info["average_speed"] = info["distance"] / info["elapsed_time"]
+        terms = {"speed": SPEED_REWARD * self.speed, "arrival": ARRIVAL_REWARD * info["success"],
+                 "collision": COLLISION_REWARD * collision}
+        self.reward_terms = terms
+        self._step_reward = float(sum(terms.values()))
+        info["episode_reward"] += self._step_reward
+        self._ended = collision or arrived or off_route
+        if self._ended or info["elapsed_time"] >= self.config.time_limit - 1e-9:  # the episode's last step
+            info.update(self.comfort.metrics(CONTROL_TIMESTEP).as_dict())
+
+    def get_reward(self, physics: Physics) -> float:
+        return self._step_reward
+
+    def get_termination(self, physics: Physics) -> float | None:
+        return 0.0 if self._ended else None
+
+    def road_users(self) -> RoadUsers:
+        present = self.traffic.present
+        kinds = tuple(k for k, p in zip(self.traffic.kinds, present, strict=True) if p)
+        return RoadUsers(kinds, self.traffic.poses()[present], self.traffic.half_size[present])
+
+    # --- observation -------------------------------------------------------------------------------------
+    def observation_spec(self, physics: Physics) -> collections.OrderedDict:
+        ego = specs.BoundedArray((4,), np.float32, 0.0, 1.0, "ego")
+        if self.observation == "camera":
+            size = self.config.image_size
+            return collections.OrderedDict(image=specs.BoundedArray((size, size, 3), np.uint8, 0, 255, "image"),
+                                           ego=ego)
+        return collections.OrderedDict(
+            ego=ego, scenario=specs.BoundedArray((len(SCENARIOS),), np.float32, 0.0, 1.0, "scenario"),
+            adversaries=specs.BoundedArray((self.config.adversaries, ADVERSARY_COLUMNS), np.float32, 0.0, 1.0,
+                                           "adversaries"))
+
+    def _ego_vector(self) -> np.ndarray:
+        values = [self.speed / SPEED_SCALE, (self.heading_error + math.pi) / (2 * math.pi),
+                  (self.lane_offset / self.config.off_route + 1.0) / 2.0, self.route_s / self.route_end]
+        return np.clip(np.array(values, np.float32), 0.0, 1.0)
+
+    def relevant_point(self) -> np.ndarray:
+        """Where adversaries' distances are measured (§5.1.2): the next conflict point on the route within
+        the active scenario; the ego itself on the two-lane road and outside every scenario."""
+        scenario = self.active_scenario()
+        if scenario in (FOLLOW, "lane_change"):
+            return self.xy
+        ahead = np.flatnonzero((self._point_s >= self.route_s - 2.0) & (self._point_scenario == scenario))
+        return self._points[ahead[0]] if len(ahead) else self.xy
+
+    def adversary_matrix(self) -> np.ndarray:
+        """(n, 4) the n road users nearest the relevant point: present, distance, speed, intention (in [0, 1])."""
+        traffic, n = self.traffic, self.config.adversaries
+        out = np.zeros((n, ADVERSARY_COLUMNS), np.float32)
+        present = np.flatnonzero(traffic.present)
+        if not len(present):
+            return out
+        point = self.relevant_point()
+        rel = traffic.positions()[present] - point
+        dist = np.hypot(rel[:, 0], rel[:, 1])
+        k = min(n, len(present))
+        order = np.argsort(dist, kind="stable")[:k]
+        idx = present[order]
+        scenario = self.active_scenario()
+        column = INTENTION_SCENARIOS.index(scenario) if scenario in INTENTION_SCENARIOS else None
+        out[:k, 0] = 1.0
+        out[:k, 1] = np.minimum(dist[order] / DISTANCE_SCALE, 1.0)
+        out[:k, 2] = np.minimum(traffic.speeds()[idx] / SPEED_SCALE, 1.0)
+        if column is not None:
+            out[:k, 3] = np.maximum(traffic.intentions()[idx, column], 0) / 2.0
+        return out
+
+    def get_observation(self, physics: Physics) -> collections.OrderedDict:
+        ego = self._ego_vector()
+        if self.observation == "camera":
+            size = self.config.image_size
+            return collections.OrderedDict(image=self.render_camera(physics, "ego/front", size, size).copy(),
+                                           ego=ego)
+        scenario = np.zeros(len(SCENARIOS), np.float32)
+        scenario[SCENARIOS.index(self.active_scenario())] = 1.0
+        return collections.OrderedDict(ego=ego, scenario=scenario, adversaries=self.adversary_matrix())
+
+
+# --- registered tasks -----------------------------------------------------------------------------------
+
+
+@functools.lru_cache(maxsize=8)
+def _route(name: str) -> UrbanRoute:
+    """The map and route of a task (built once per process; maps are immutable data)."""
+    return route_through(concatenated(order=PIECES[name]))
+
+
+def _make(name: str, config: UrbanConfig, environment_kwargs) -> DrivingEnvironment:
+    where = f"urban/{name}"
+    env_kwargs = environment_config(environment_kwargs, config.physics_dt, CONTROL_TIMESTEP, where)
+    route = _route(name)
+    composed: ComposedMap = route.composed
+    kinds = counts_to_kinds(default_counts(composed) if config.road_users is None else config.road_users)
+    model = world.build(route.road_map, vehicle=config.vehicle, traffic=slots(kinds), timestep=config.physics_dt)
+    physics = Physics.from_model(wrapper.MjModel(model))
+    task = UrbanTask(model, route, kinds, name, config)
+    return DrivingEnvironment(physics, task, time_limit=config.time_limit, **env_kwargs)
+
+
+def _register(name: str, time_limit: float, doc: str):
+    def build(config: UrbanConfig, environment_kwargs=None) -> DrivingEnvironment:
+        return _make(name, config, environment_kwargs)
+
+    build.__name__ = name
+    build.__doc__ = doc
+    return SUITE.add("study002", "urban")(configured_task(UrbanConfig, time_limit=time_limit)(build))
+
+
+roundabout = _register("roundabout", 40.0, "Enter the roundabout and leave at the route's exit, in traffic.")
+lane_change = _register("lane_change", 60.0, "Overtake slow vehicles on the two-lane road and come back.")
+crossroad = _register("crossroad", 40.0, "Cross the main road from the minor road (give way), in traffic.")
+merge = _register("merge", 40.0, "Join the main road from the right through the acceleration lane.")
+concatenated_route = _register("concatenated", 200.0, "The whole route: roundabout, two-lane road, crossroad, "
+                               "merge (Fig. 8).")
