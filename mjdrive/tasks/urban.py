@@ -303,9 +303,9 @@ def _register(name: str, time_limit: float, doc: str):
     return SUITE.add("study002", "urban")(configured_task(UrbanConfig, time_limit=time_limit)(build))
 
 
-roundabout = _register("roundabout", 40.0, "Enter the roundabout and leave at the route's exit, in traffic.")
+roundabout = _register("roundabout", 90.0, "Enter the roundabout and leave at the route's exit, in traffic.")
 lane_change = _register("lane_change", 60.0, "Overtake slow vehicles on the two-lane road and come back.")
-crossroad = _register("crossroad", 40.0, "Cross the main road from the minor road (give way), in traffic.")
-merge = _register("merge", 40.0, "Join the main road from the right through the acceleration lane.")
-concatenated_route = _register("concatenated", 200.0, "The whole route: roundabout, two-lane road, crossroad, "
+crossroad = _register("crossroad", 90.0, "Cross the main road from the minor road (give way), in traffic.")
+merge = _register("merge", 60.0, "Join the main road from the right through the acceleration lane.")
+concatenated_route = _register("concatenated", 400.0, "The whole route: roundabout, two-lane road, crossroad, "
                                "merge (Fig. 8).")
