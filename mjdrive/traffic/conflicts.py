@@ -189,9 +189,10 @@ def conflict_columns(t: Traffic, ctx: dict, f: dict) -> tuple[np.ndarray, np.nda
     at_line = table.other_stop[None] - front_o < AT_LINE
     waited_long = np.append(t.stopped_time, 0.0)[:, None] >= TURN_WAIT  # (A, 1) (the ego: never)
     held = before_line & ~(at_line & waited_long)
-    # Impatience: the critical gap shrinks to half over `impatience` seconds of waiting.
+    # Impatience: the critical gap shrinks to zero over `impatience` seconds of waiting (the gap must still
+    # let the follower clear the zone before the priority agent arrives).
     waited = np.append(t.stopped_time, 0.0)[np.minimum(me, t.nv)]  # (P,) [s] (the ego: never)
-    critical = cfg.critical_gap_crossing * np.maximum(0.5, 1.0 - 0.5 * waited / cfg.impatience)
+    critical = cfg.critical_gap_crossing * np.maximum(0.0, 1.0 - waited / cfg.impatience)
     soon = (others & ~tr(held) & (tr(ttz) < (t_clear + critical)[:, None])).any(axis=1)  # (P,)
     # Occupied: someone from the other lane is committed to the zone (past its give-way line) or in it. A
     # vehicle not yet committed waits at its give-way line for either; a committed one stops at the zone's

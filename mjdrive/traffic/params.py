@@ -85,7 +85,7 @@ class TrafficConfig(Config):
                               "source is clear)", "1/s", ge=0.0, le=10.0)
     critical_gap_crossing: float = param(2.0, "urban rules: a yielding vehicle crosses if every priority agent "
                                          "reaches the zone this long after it has cleared it", "s", ge=0.0, le=20.0)
-    impatience: float = param(20.0, "urban rules: waiting this long halves a vehicle's critical gap", "s",
+    impatience: float = param(20.0, "urban rules: waiting this long brings a vehicle's critical gap to zero", "s",
                               gt=0.0, le=600.0)
     critical_gap_merge: float = param(1.5, "urban rules: ... and merges if they reach the merge point this long "
                                       "after it", "s", ge=0.0, le=20.0)
