@@ -378,12 +378,22 @@ def cmd_train(args) -> int:
         return train_command(args)
 
 
+def _say_when_not_a_terminal(message: str) -> None:
+    """A plain status line on stdout when stderr is not a terminal (a log file hears that a slow start has
+    begun; stderr keeps a user's mistake to one line)."""
+    from mjdrive.progress import is_terminal
+
+    if not is_terminal(sys.stderr):
+        print(message, flush=True)
+
+
 def cmd_eval(args) -> int:
     from mjdrive.progress import Starting
 
     if args.live and (getattr(args, "workers", 0) or getattr(args, "ray", None) or not args.record):
         raise ValueError("--live streams the episode logs of this process: drop --no-record, --workers and --ray")
 
+    _say_when_not_a_terminal("mjdrive eval: loading torch and checking the checkpoint ...")
     with Starting("mjdrive eval: loading torch and checking the checkpoint", terminal_only=True):
         from agents.common import load_checkpoint
 
@@ -397,6 +407,7 @@ def cmd_eval(args) -> int:
 def cmd_ensemble(args) -> int:
     from mjdrive.progress import Starting
 
+    _say_when_not_a_terminal("mjdrive ensemble: loading torch and the members ...")
     with Starting("mjdrive ensemble: loading torch and the members", terminal_only=True):
         from agents.ensemble import ensemble_command
 
