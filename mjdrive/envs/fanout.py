@@ -15,27 +15,51 @@ Ctrl-C left to the parent; `ray` (an address, "local" for a private Ray of `work
 CPU, at most `workers` in flight (all of the cluster's CPUs when `workers=0`).
 Faults: a worker process that dies (kill -9, out of memory) breaks the pool; its unfinished jobs run again in
 a new pool (`max_restarts` times at most); Ray reruns a task whose worker died by itself (`max_retries`).
-Ctrl-C (KeyboardInterrupt) terminates the workers (or cancels the Ray tasks) before it propagates.
+Ctrl-C (KeyboardInterrupt), and SIGTERM where nobody else handles it, terminate the workers (or cancel the Ray
+tasks) before propagating; a parent killed outright (SIGKILL) takes its workers with it (`exit_with_parent`).
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
 import signal
 import sys
-from collections.abc import Callable, Iterable
+import threading
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, TypeVar
 
-from mjdrive.envs.vector import pin_threads, ray_connect, ray_module, worker_context
+from mjdrive.envs.vector import exit_with_parent, pin_threads, ray_connect, ray_module, worker_context
 
 T = TypeVar("T")
 MAX_RESTARTS = 3  # new pools (local) or retries per task (Ray) after workers died
 
 
-def _init_worker() -> None:
+def _init_worker(parent_pid: int) -> None:
     pin_threads()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's: it terminates the workers
+    exit_with_parent(parent_pid)  # a parent killed outright (SIGKILL) leaves no worker behind
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM (kill, a scheduler's time limit) stops a fan-out like Ctrl-C, workers terminated, where nobody
+    else handles it (the main thread, default handler)."""
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        yield
+        return
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def fan_out(function: Callable[[Any, int], T], spec: Any, indices: Iterable[int], workers: int = 0,
@@ -51,7 +75,8 @@ def fan_out(function: Callable[[Any, int], T], spec: Any, indices: Iterable[int]
         raise ValueError(f"workers must be >= 0, got {workers}")
     log = log or (lambda line: print(line, file=sys.stderr, flush=True))
     if ray is not None:
-        return _fan_out_ray(function, spec, indices, workers, ray, on_result, max_restarts)
+        with _sigterm_as_interrupt():
+            return _fan_out_ray(function, spec, indices, workers, ray, on_result, max_restarts)
     if workers == 0:
         results = {}
         for index in indices:
@@ -59,7 +84,8 @@ def fan_out(function: Callable[[Any, int], T], spec: Any, indices: Iterable[int]
             if on_result is not None:
                 on_result(index, results[index])
         return results
-    return _fan_out_local(function, spec, indices, workers, on_result, max_restarts, context, log)
+    with _sigterm_as_interrupt():
+        return _fan_out_local(function, spec, indices, workers, on_result, max_restarts, context, log)
 
 
 def _fan_out_local(function, spec, indices, workers, on_result, max_restarts, context, log) -> dict:
@@ -69,7 +95,8 @@ def _fan_out_local(function, spec, indices, workers, on_result, max_restarts, co
         pending = [i for i in indices if i not in results]
         if not pending:
             break
-        pool = ProcessPoolExecutor(min(workers, len(pending)), mp_context=ctx, initializer=_init_worker)
+        pool = ProcessPoolExecutor(min(workers, len(pending)), mp_context=ctx, initializer=_init_worker,
+                                   initargs=(os.getpid(),))
         broken = False
         try:
             futures = {pool.submit(function, spec, i): i for i in pending}

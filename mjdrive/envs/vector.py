@@ -33,6 +33,7 @@ import multiprocessing
 import os
 import signal
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -87,6 +88,26 @@ def pin_threads() -> None:
 # torch.optim pulls in, take seconds to import); nothing that opens a GL display (dm_control's EGL backend does at
 # import): every worker initialises its own
 FORKSERVER_PRELOAD = ("numpy", "gymnasium", "torch", "torch._dynamo")
+
+
+def exit_with_parent(pid: int, period: float = 1.0) -> None:
+    """In a worker: exit as soon as process `pid` (the parent that started the workers) is gone, even if it was
+    killed with SIGKILL. A forkserver's worker is not the parent's child and may block on a queue whose writer
+    it holds itself, so it would not notice otherwise. `period` [s] between checks."""
+    def watch() -> None:
+        while True:
+            time.sleep(period)
+            try:
+                os.kill(pid, 0)
+                with open(f"/proc/{pid}/stat") as stat:  # a zombie is gone too
+                    if stat.read().rsplit(")", 1)[1].split()[0] == "Z":
+                        os._exit(1)
+            except (ProcessLookupError, FileNotFoundError):
+                os._exit(1)
+            except (PermissionError, OSError):
+                continue
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
 
 
 def default_context() -> str:
@@ -156,9 +177,11 @@ class ChunkEnv(gym.Env):
     memory, step -> (obs, (K,) rewards, (K,) terminated, (K,) truncated, {"chunk": (final rows, final_info)}).
     It resets its ended copies itself."""
 
-    def __init__(self, spec: CopySpec, start: int, count: int):
+    def __init__(self, spec: CopySpec, start: int, count: int, parent_pid: int | None = None):
         pin_threads()  # before any GL context (created at the first render) or torch op in this process
         signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's: it closes the workers in order
+        if parent_pid is not None:
+            exit_with_parent(parent_pid)
         self.env = spec.build(start, count)
         self.observation_space, self.action_space = chunk_spaces(
             self.env.single_observation_space, self.env.single_action_space, count)
@@ -193,7 +216,7 @@ class ChunkFactory:
     def __call__(self) -> gym.Env:
         if os.getpid() == self.parent_pid:
             return _SpacesOnly(*self.spaces)
-        return ChunkEnv(self.spec, self.start, self.count)
+        return ChunkEnv(self.spec, self.start, self.count, self.parent_pid)
 
 
 class _ChunkedVecEnv:
