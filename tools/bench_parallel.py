@@ -46,6 +46,20 @@ def load() -> str:
     return " / ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
+def busy_processes() -> str:
+    """Other processes using more than half a core now (CPU share since they started, nice value, command)."""
+    import subprocess
+
+    lines = subprocess.run(["ps", "-eo", "pid,pcpu,ni,args", "--sort=-pcpu"], capture_output=True,
+                           text=True).stdout.splitlines()[1:]
+    busy = []
+    for line in lines:
+        pid, cpu, nice, command = line.split(None, 3)
+        if float(cpu) > 50 and int(pid) != os.getpid():
+            busy.append(f"`{command[:90]}` ({cpu}% CPU, nice {nice})")
+    return "; ".join(busy) or "none"
+
+
 def bench_eval(checkpoint: Path, episodes: int, seed: int) -> dict[int, dict]:
     """{workers: {steps_per_s, wall_s, steps}} for the same episodes; raises if the rows differ."""
     out, reference = {}, None
@@ -107,7 +121,7 @@ def ratio(a: float, b: float) -> str:
 
 
 def report(evals: dict, trains: dict, args: argparse.Namespace, load_before: str, load_after: str,
-           wall: float) -> str:
+           wall: float, busy: str) -> str:
     command = "python tools/bench_parallel.py " + shlex.join(sys.argv[1:])
     lines = [
         f"# Scale-out throughput ({platform.machine()}, {os.cpu_count()} cores, python "
@@ -117,7 +131,7 @@ def report(evals: dict, trains: dict, args: argparse.Namespace, load_before: str
         "",
         f"1-min / 5-min / 15-min load average: {load_before} at the start, {load_after} at the end "
         f"(the run took {wall / 60:.1f} min). Every figure below comes from this one run; ratios compare figures of "
-        "this run.",
+        "this run. Other busy processes at the start: " + busy + ".",
         "",
         "## Evaluation (`mjdrive eval --workers N`)",
         "",
@@ -214,13 +228,13 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(1)  # as `mjdrive train` and `eval` (the configs' torch_threads)
     fan_out(operator.add, 0, range(2), workers=1)  # start the forkserver (it preloads torch) before any timing
-    load_before, start = load(), time.perf_counter()
+    load_before, busy, start = load(), busy_processes(), time.perf_counter()
     print(f"load {load_before}", flush=True)
     evals = {obs: (checkpoint, bench_eval(checkpoint, args.episodes, args.seed))
              for obs, checkpoint in EVAL_CASES.items()}
     trains = {label: bench_collection(name, overrides, args.seconds)
               for label, (name, overrides) in TRAIN_CASES.items()}
-    text = report(evals, trains, args, load_before, load(), time.perf_counter() - start)
+    text = report(evals, trains, args, load_before, load(), time.perf_counter() - start, busy)
     print(text)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
