@@ -161,8 +161,10 @@ def test_reward_terms_follow_eq_12(env210):
     env.reset()
     task = env.task
     remaining = task.remaining
+    episode_return = 0.0
     for k in range(25):
         timestep = env.step(np.array([0.5, 0.0, 0.0]) if k < 15 else np.array([0.0, 0.0, 1.0]))
+        episode_return += timestep.reward
         terms = task.reward_terms
         assert set(terms) == TERMS
         assert timestep.reward == pytest.approx(sum(terms.values()))
@@ -174,7 +176,7 @@ def test_reward_terms_follow_eq_12(env210):
         if timestep.last():
             break
     assert task.info["steps"] == k + 1
-    assert task.info["episode_reward"] == pytest.approx(task.info["episode_reward"])
+    assert task.info["episode_reward"] == pytest.approx(episode_return)  # the sum of the step rewards
 
 
 def test_episode_is_truncated_after_1100_steps():
