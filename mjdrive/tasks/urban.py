@@ -38,6 +38,7 @@ from mjdrive.comfort import ComfortMeter
 from mjdrive.config import ConfigError, param
 from mjdrive.roads import Lane
 from mjdrive.roads.ports import ComposedMap
+from mjdrive.roads.route_frame import RouteFrame
 from mjdrive.roads.urban import FOLLOW, UrbanRoute, concatenated, route_offsets, route_through
 from mjdrive.sensors import wrap_angle
 from mjdrive.tasks.base import (
@@ -49,7 +50,6 @@ from mjdrive.tasks.base import (
     configured_task,
     environment_config,
 )
-from mjdrive.tasks.roundabout import RouteFrame
 from mjdrive.traffic import KIND_NAMES, EgoState, TrafficConfig, counts_to_kinds, slots
 from mjdrive.traffic.intentions import SCENARIOS as INTENTION_SCENARIOS
 from mjdrive.traffic.urban import URBAN_CONFIG, default_counts, urban_traffic
