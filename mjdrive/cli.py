@@ -217,6 +217,16 @@ def cmd_list(args) -> int:
     return 0
 
 
+def _checked_task(args) -> tuple[str, str, dict]:
+    """DOMAIN, TASK and validated task keywords of `run` / `drive` (a user's mistake before anything is built)."""
+    domain, task = _split_task(args.task)
+    task_kwargs = _parse_kwargs(args.task_kwarg)
+    if args.live and not args.record:
+        raise ValueError("--live streams the channels of the episode logs: drop --no-record")
+    _check_kwargs(domain, task, task_kwargs)
+    return domain, task, task_kwargs
+
+
 def cmd_run(args) -> int:
     from mjdrive.envs import make_env
     from mjdrive.policies import make_policy
@@ -224,11 +234,7 @@ def cmd_run(args) -> int:
     from mjdrive.record.summary import document, end_reason, episode_row, roundabout_arms
     from mjdrive.video import EpisodeVideo, Overlay
 
-    domain, task = _split_task(args.task)
-    task_kwargs = _parse_kwargs(args.task_kwarg)
-    if args.live and not args.record:
-        raise ValueError("--live streams the channels of the episode logs: drop --no-record")
-    _check_kwargs(domain, task, task_kwargs)
+    domain, task, task_kwargs = _checked_task(args)
     note(f"mjdrive run: building {args.task} ...")
     env = make_env(domain, task, sensors=args.sensors, **task_kwargs)  # bad keywords: reported before the folder
     out = fresh_folder(args.out, args.overwrite)
@@ -289,11 +295,7 @@ def cmd_drive(args) -> int:
     from mjdrive.progress import note
     from mjdrive.record.summary import document
 
-    domain, task = _split_task(args.task)
-    task_kwargs = _parse_kwargs(args.task_kwarg)
-    if args.live and not args.record:
-        raise ValueError("--live streams the channels of the episode logs: drop --no-record")
-    _check_kwargs(domain, task, task_kwargs)
+    domain, task, task_kwargs = _checked_task(args)
     if not has_display():
         raise ValueError("drive opens a window: set DISPLAY (or run it under `xvfb-run`)")
     note(f"mjdrive drive: building {args.task} ...")
