@@ -193,8 +193,14 @@ class DrivingTask(control.Task):
         self.collision_sensor.sample(physics.raw_data)
 
     def road_users(self) -> RoadUsers:
-        """Every other road user now (for logs and viewers); none in a task without traffic."""
-        return NO_ROAD_USERS
+        """Every other road user now (for logs and viewers): those of `self.traffic` where the task has
+        traffic, none otherwise."""
+        traffic = getattr(self, "traffic", None)
+        if traffic is None:
+            return NO_ROAD_USERS
+        present = traffic.present
+        kinds = tuple(k for k, p in zip(traffic.kinds, present, strict=True) if p)
+        return RoadUsers(kinds, traffic.poses()[present], traffic.half_size[present])
 
     def render_camera(self, physics: Physics, camera: str, height: int, width: int,
                       markers: np.ndarray | None = None, antialias: bool = False) -> np.ndarray:

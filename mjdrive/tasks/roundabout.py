@@ -68,7 +68,6 @@ from mjdrive.tasks.base import (
     DrivingEnvironment,
     DrivingTask,
     Physics,
-    RoadUsers,
     configured_task,
     environment_config,
 )
@@ -302,11 +301,6 @@ class RoundaboutTask(DrivingTask):
         if info["collision"] or info["success"] or info["off_route"] or (self.off_road_ends and info["off_road"]):
             return 0.0
         return None
-
-    def road_users(self) -> RoadUsers:
-        present = self.traffic.present
-        kinds = tuple(k for k, p in zip(self.traffic.kinds, present, strict=True) if p)
-        return RoadUsers(kinds, self.traffic.poses()[present], self.traffic.half_size[present])
 
     # --- observation ---------------------------------------------------------------------------------
     def observation_spec(self, physics: Physics) -> collections.OrderedDict:

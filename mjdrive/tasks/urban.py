@@ -46,7 +46,6 @@ from mjdrive.tasks.base import (
     DrivingEnvironment,
     DrivingTask,
     Physics,
-    RoadUsers,
     configured_task,
     environment_config,
 )
@@ -208,11 +207,6 @@ class UrbanTask(DrivingTask):
 
     def get_termination(self, physics: Physics) -> float | None:
         return 0.0 if self._ended else None
-
-    def road_users(self) -> RoadUsers:
-        present = self.traffic.present
-        kinds = tuple(k for k, p in zip(self.traffic.kinds, present, strict=True) if p)
-        return RoadUsers(kinds, self.traffic.poses()[present], self.traffic.half_size[present])
 
     # --- observation -------------------------------------------------------------------------------------
     def observation_spec(self, physics: Physics) -> collections.OrderedDict:
