@@ -260,6 +260,7 @@ class BatchedEnv:
         if new.any() or not np.all(np.isfinite(data.qpos)):
             names = [name for name, flag in zip(mujoco.mjtWarning.__members__, new, strict=False) if flag]
             task.info["physics_error"] = f"physics state is invalid ({', '.join(names) or 'non-finite qpos'})"
+            task.info.update(task.comfort_metrics())
             dm._reset_next_step = True
             return dict(dm._last_observation), 0.0, True, False
         task.after_step(physics)
@@ -268,6 +269,7 @@ class BatchedEnv:
         dm._step_count += 1
         discount = 1.0 if dm._step_count >= dm._step_limit else task.get_termination(physics)
         dm._last_observation = observation
+        dm.end_step_comfort(discount is not None)
         if discount is None:
             return dict(observation), reward, False, False
         dm._reset_next_step = True

@@ -1,8 +1,10 @@
-"""What every driving task shares: the ego car, the action spec, safety sensors, episode info, and an
-Environment that turns physics blow-ups into an ended episode instead of an exception."""
+"""What every driving task shares: the ego car, the action spec, safety sensors, episode info with the comfort
+metrics at the episode's end, and an Environment that turns physics blow-ups into an ended episode instead of
+an exception."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -14,6 +16,7 @@ from dm_control import mujoco as dm_mujoco
 from dm_control.rl import control
 from dm_env import specs
 
+from mjdrive.comfort import ComfortMeter, ComfortMetrics
 from mjdrive.config import Config, ConfigError, param
 from mjdrive.roads import RoadMap
 from mjdrive.sensors import CameraRenderer, CollisionSensor, LaneInvasionSensor, footprint
@@ -88,11 +91,14 @@ def configured_task(config_class: type[DrivingConfig], **defaults: Any) -> Calla
 
 @dataclass(frozen=True)
 class RoadUsers:
-    """Snapshot of the other road users: kind names, poses (N,3) [m, m, rad] and half sizes (N,3) [m]."""
+    """Snapshot of the other road users: kind names, poses (N,3) [m, m, rad], half sizes (N,3) [m], and
+    where the traffic has them (urban), their intentions (N, 4) by scenario (`mjdrive.traffic.intentions`
+    SCENARIOS columns, -1 for pedestrians)."""
 
     kinds: tuple[str, ...]
     poses: np.ndarray
     half_sizes: np.ndarray
+    intentions: np.ndarray | None = None
 
 
 NO_ROAD_USERS = RoadUsers((), np.zeros((0, 3)), np.zeros((0, 3)))
@@ -136,7 +142,13 @@ class Physics(dm_mujoco.Physics):
 
 class DrivingTask(control.Task):
     """Base task: ego vehicle bound to the model, throttle/steer/brake actions, collision and
-    lane-invasion sensors, and `info` (a dict of episode metrics refreshed every step)."""
+    lane-invasion sensors, and `info` (a dict of episode metrics refreshed every step).
+
+    Comfort: `comfort` (a `mjdrive.comfort.ComfortMeter`) gets the chassis' planar velocity and yaw
+    (`comfort_sample`) after every reset and control step; the DrivingEnvironment drives it and puts the
+    metrics (`ComfortMetrics.as_dict()` keys, e.g. `jerk_p95_mps3`) into `info` at the episode's last step,
+    sampled every control period `control_dt` [s] (set by the DrivingEnvironment).
+    """
 
     def __init__(self, model: mujoco.MjModel, road_map: RoadMap, vehicle: str, random=None):
         super().__init__()
@@ -149,6 +161,8 @@ class DrivingTask(control.Task):
         self.cameras: dict[tuple[str, int, int, bool], CameraRenderer] = {}
         self.info: dict[str, Any] = {}  # episode metrics, refreshed every step
         self.reward_terms: dict[str, float] = {}  # this step's reward, term by term (for logs)
+        self.comfort = ComfortMeter()  # this episode's chassis samples, one per control step
+        self.control_dt: float | None = None  # [s] control period, set by the DrivingEnvironment
 
     @property
     def random(self) -> np.random.RandomState:
@@ -173,6 +187,30 @@ class DrivingTask(control.Task):
     def ego_corners(self, physics: Physics) -> np.ndarray:
         x, y, yaw = self.vehicle.pose(physics.raw_data)
         return footprint(x, y, yaw, self.params.length, self.params.width)
+
+    def comfort_sample(self, data: mujoco.MjData) -> tuple[np.ndarray, float]:
+        """(planar chassis velocity (2,) [m/s] in the world frame, yaw [rad]): a `ComfortMeter` sample."""
+        _, _, yaw, forward, left, _ = self.vehicle.planar_state(data)
+        c, s = math.cos(yaw), math.sin(yaw)
+        return np.array([c * forward - s * left, s * forward + c * left]), yaw
+
+    def reset_comfort(self, physics: Physics) -> None:
+        """Start the episode's comfort samples with the state after reset."""
+        self.comfort.reset()
+        self.sample_comfort(physics)
+
+    def sample_comfort(self, physics: Physics) -> None:
+        """Add the state after a control step to the comfort samples (a non-finite state is left out)."""
+        velocity, yaw = self.comfort_sample(physics.raw_data)
+        if math.isfinite(yaw) and np.isfinite(velocity).all():
+            self.comfort.add(velocity, yaw)
+
+    def comfort_metrics(self) -> dict[str, float]:
+        """The episode's comfort metrics so far (`ComfortMetrics.as_dict()`; NaN when too short to filter,
+        or without a control period)."""
+        if self.control_dt is None:
+            return ComfortMetrics.nan().as_dict()
+        return self.comfort.metrics(self.control_dt).as_dict()
 
     def reset_safety_sensors(self, physics: Physics) -> None:
         """Reset the sensors and sample contacts between physics chunks (`substep`, every `substep_period()`
@@ -219,12 +257,15 @@ class DrivingTask(control.Task):
 
 class DrivingEnvironment(control.Environment):
     """dm_control Environment whose episode ends (discount 0, `info["physics_error"]`) when the
-    simulation becomes unstable, instead of raising and killing a training run."""
+    simulation becomes unstable, instead of raising and killing a training run. It samples the task's
+    comfort meter after every reset and step, and puts the comfort metrics into `info` at the episode's
+    last step (whatever ends it: the task, the time limit or a physics error)."""
 
     def __init__(self, physics: Physics, task: DrivingTask, **kwargs):
         kwargs.setdefault("legacy_step", False)
         super().__init__(physics, task, **kwargs)
         self._last_observation = None
+        task.control_dt = self.control_timestep()  # [s] the comfort samples' period
 
     @property
     def info(self) -> dict[str, Any]:
@@ -238,6 +279,7 @@ class DrivingEnvironment(control.Environment):
     def reset(self) -> dm_env.TimeStep:
         timestep = super().reset()
         self._last_observation = timestep.observation
+        self.task.reset_comfort(self.physics)
         return timestep
 
     def step(self, action) -> dm_env.TimeStep:
@@ -248,6 +290,15 @@ class DrivingEnvironment(control.Environment):
         except control.PhysicsError as error:
             self._reset_next_step = True
             self.task.info["physics_error"] = str(error)
+            self.task.info.update(self.task.comfort_metrics())
             return dm_env.TimeStep(dm_env.StepType.LAST, 0.0, 0.0, self._last_observation)
         self._last_observation = timestep.observation
+        self.end_step_comfort(timestep.last())
         return timestep
+
+    def end_step_comfort(self, last: bool) -> None:
+        """After a control step: sample the task's comfort meter; at the episode's last step put the comfort
+        metrics into `info` (also called by the batched env, which steps the physics itself)."""
+        self.task.sample_comfort(self.physics)
+        if last:
+            self.task.info.update(self.task.comfort_metrics())

@@ -18,7 +18,7 @@ Reward (§5.1.4): 1e-3 x speed [m/s] every step, +1 on arriving at the end of th
 Episodes end (terminated) on a collision, on arrival, or more than `off_route` m from the route's centre line;
 they are truncated at the time limit. `info`: success, collision, off_route, scenario, elapsed_time [s],
 average_speed [m/s], distance [m], steps, episode_reward, route_length [m], and at the end the comfort
-metrics (`mjdrive.comfort`, sampled at the control rate).
+metrics (`mjdrive.comfort`, sampled at the control rate by the DrivingEnvironment, as on every task).
 """
 
 from __future__ import annotations
@@ -34,7 +34,6 @@ from dm_control.utils import containers
 from dm_env import specs
 
 from mjdrive import world
-from mjdrive.comfort import ComfortMeter
 from mjdrive.config import ConfigError, param
 from mjdrive.roads import Lane
 from mjdrive.roads.ports import ComposedMap
@@ -46,6 +45,7 @@ from mjdrive.tasks.base import (
     DrivingEnvironment,
     DrivingTask,
     Physics,
+    RoadUsers,
     configured_task,
     environment_config,
 )
@@ -109,7 +109,6 @@ class UrbanTask(DrivingTask):
         self.route_end = float(self.route_frame.s0[-1] + self.route_frame.length[-1])  # [m]
         self.start_s = 0.0 if scenario == "concatenated" else max(
             0.0, route.tactical.interval(scenario)[0] - config.start_before)
-        self.comfort = ComfortMeter()
         # the conflict points ahead on the route, by the scenario they lie in
         rc = route.route_conflicts
         self._points = np.asarray(route.conflicts.point)[rc.zone] if len(rc) else np.zeros((0, 2))
@@ -128,8 +127,6 @@ class UrbanTask(DrivingTask):
         self.traffic.write(physics.raw_data)
         self.reset_safety_sensors(physics)
         self._update_ego(physics)
-        self.comfort.reset()
-        self._sample_comfort(physics)
         self.info = {
             "success": False, "collision": False, "off_route": False, "physics_error": None,
             "scenario": self.active_scenario(), "elapsed_time": 0.0, "average_speed": 0.0, "distance": 0.0,
@@ -168,19 +165,19 @@ class UrbanTask(DrivingTask):
         tangent = self.route_frame.tangent[self.route_frame.segment]
         self.heading_error = float(wrap_angle(yaw - math.atan2(tangent[1], tangent[0])))  # [rad]
 
-    def _sample_comfort(self, physics: Physics) -> None:
-        vx, vy = self.vehicle.velocity_body(physics.raw_data)
-        c, s = math.cos(self.yaw), math.sin(self.yaw)
-        self.comfort.add(np.array([c * vx - s * vy, s * vx + c * vy]), self.yaw)
-
     def active_scenario(self) -> str:
         """The tactical trajectory's scenario at the ego's place on the route."""
         return self.urban.tactical.scenario_at(self.route_s)
 
+    def road_users(self) -> RoadUsers:
+        """The road users (base class) with their intentions (N, 4) by scenario, for logs and viewers."""
+        users = super().road_users()
+        return RoadUsers(users.kinds, users.poses, users.half_sizes,
+                         self.traffic.intentions()[self.traffic.present])
+
     def after_step(self, physics: Physics) -> None:
         previous_xy = self.xy
         self._update_ego(physics)
-        self._sample_comfort(physics)
         info = self.info
         collision = self.collision_sensor.collided(physics.raw_data)
         arrived = self.route_s >= self.route_end - ARRIVAL_MARGIN
@@ -199,8 +196,6 @@ class UrbanTask(DrivingTask):
         self._step_reward = float(sum(terms.values()))
         info["episode_reward"] += self._step_reward
         self._ended = collision or arrived or off_route
-        if self._ended or info["elapsed_time"] >= self.config.time_limit - 1e-9:  # the episode's last step
-            info.update(self.comfort.metrics(CONTROL_TIMESTEP).as_dict())
 
     def get_reward(self, physics: Physics) -> float:
         return self._step_reward
