@@ -1,6 +1,7 @@
 """Protobuf on the hot path without building message objects: wire-format helpers, numpy-encoded
-repeated cubes (the road users of a `foxglove.SceneUpdate`), mjdrive's own `PhysicsState` schema, and a
-generic decoder for any protobuf channel of an MCAP file (used by the reader and the tests).
+repeated cubes (the road users of a `foxglove.SceneUpdate`) and their text labels, mjdrive's own
+`PhysicsState` schema, and a generic decoder for any protobuf channel of an MCAP file (used by the reader
+and the tests).
 
 Every double is written explicitly (proto3 readers accept zeros that a proto3 writer would omit), so a
 cube has a fixed size and N cubes are one numpy buffer whose doubles sit at fixed offsets.
@@ -105,6 +106,22 @@ class CubeListEncoder:
         r["sx"], r["sy"], r["sz"] = 2.0 * half_sizes[:, 0], 2.0 * half_sizes[:, 1], 2.0 * half_sizes[:, 2]
         r["r"], r["g"], r["b"], r["a"] = rgba[:, 0], rgba[:, 1], rgba[:, 2], rgba[:, 3]
         return self.buffer[: n * len(self.template)].tobytes()
+
+
+ENTITY_TEXTS_FIELD = 13  # foxglove.SceneEntity.texts
+
+
+def text_fields(positions: np.ndarray, texts: list[bytes], rgba: np.ndarray, font_size: float = 12.0) -> bytes:
+    """The repeated `texts` fields of a foxglove.SceneEntity: billboard, scale-invariant labels (UTF-8 `texts`)
+    at `positions` (N,3) [m] with colours (N,4) [0-1], `font_size` [px]."""
+    style = tag(2, 0) + varint(1) + tag(3, _DOUBLE) + struct.pack("<d", font_size) + tag(4, 0) + varint(1)
+    out = bytearray()
+    for (x, y, z), text, (r, g, b, a) in zip(positions.tolist(), texts, rgba.tolist(), strict=True):
+        pose = length_delimited(1, length_delimited(1, struct.pack("<BdBdBd", 0x09, x, 0x11, y, 0x19, z))
+                                + length_delimited(2, tag(4, _DOUBLE) + struct.pack("<d", 1.0)))
+        color = length_delimited(5, struct.pack("<BdBdBdBd", 0x09, r, 0x11, g, 0x19, b, 0x21, a))
+        out += length_delimited(ENTITY_TEXTS_FIELD, pose + style + color + length_delimited(6, text))
+    return bytes(out)
 
 
 def scene_update_bytes(entity_head: bytes, entity_body: bytes) -> bytes:

@@ -150,12 +150,17 @@ def _fmt(value: Any, digits: int = 2) -> str:
     return str(value)
 
 
+def _mean(summary: dict, key: str) -> str:
+    """A mean of the summary for the table's last row ("-" when no row has the value)."""
+    return f"{summary[key]:.2f} (mean)" if key in summary else "-"
+
+
 def logs_rows(folder: str | Path, progress: bool = False) -> tuple[list[dict], list[str], list[str], list[str]]:
     """(schema rows of the complete episodes in `folder`, their task names, one table row per damaged or
     unreadable file, one line per problem). Rows follow `mjdrive.record.summary.ROW_FIELDS`, as run's and
     eval's do. `progress`: a bar over the files on stderr."""
     from mjdrive.progress import Progress
-    from mjdrive.record.summary import episode_row, roundabout_arms
+    from mjdrive.record.summary import COMFORT_FIELDS, episode_row, roundabout_arms
 
     rows: list[dict] = []
     tasks: list[str] = []
@@ -166,21 +171,23 @@ def logs_rows(folder: str | Path, progress: bool = False) -> tuple[list[dict], l
         try:
             episode = read_episode(path, topics={"/action", "/physics"})
         except EpisodeFileError as error:
-            damaged.append(f"| {path.name} | - | - | - | - | - | - | - | - | - | unreadable |")
+            damaged.append(f"| {path.name} | - | - | - | - | - | - | - | - | - | - | - | - | unreadable |")
             problems.append(str(error))
             continue
         meta, summary = episode.metadata, episode.summary
         if summary is None:
             damaged.append(f"| {path.name} | {meta.get('task')} | {_fmt(meta.get('seed'))} | {episode.readable_steps} "
-                           "| - | - | - | - | - | - | incomplete |")
+                           "| - | - | - | - | - | - | - | - | - | incomplete |")
             problems.append(episode.describe_damage())
             continue
         steps = int(summary.get("steps", 0))
         arms = roundabout_arms(meta["domain"], meta["task_name"], meta.get("task_kwargs"))
+        # the comfort metrics of the summary (the recorder's, mjdrive.comfort); older logs: the task's info
+        comfort = {name: summary[key] for name, key in COMFORT_FIELDS.items() if key in summary} or None
         rows.append(episode_row(summary.get("info", {}), episode=len(rows), seed=summary.get("seed"),
                                 reward=summary.get("return", 0.0), steps=steps,
                                 terminated=bool(summary.get("terminated")), truncated=bool(summary.get("truncated")),
-                                interrupted=bool(summary.get("interrupted")), arms=arms, log=path.name,
+                                interrupted=bool(summary.get("interrupted")), arms=arms, log=path.name, comfort=comfort,
                                 control_dt=float(summary.get("sim_time", 0.0)) / max(steps, 1)))
         tasks.append(summary.get("task", meta.get("task")))
     return rows, tasks, damaged, problems
@@ -204,19 +211,23 @@ def logs_table(folder: str | Path, rows_of_folder: tuple | None = None) -> str:
     rows, tasks, damaged, problems = rows_of_folder or logs_rows(folder)
     lines = [
         f"# Episodes in {folder}", "",
-        "| file | task | seed | steps | reward | success | collision | time [s] | mean speed [m/s] | exit | end |",
-        "| --- | --- | ---: | ---: | ---: | --- | --- | ---: | ---: | ---: | --- |",
+        "| file | task | seed | steps | reward | success | collision | time [s] | mean speed [m/s] "
+        "| p95 jerk [m/s^3] | max jerk [m/s^3] | p95 accel [m/s^2] | exit | end |",
+        "| --- | --- | ---: | ---: | ---: | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | --- |",
     ]
     for row, task in zip(rows, tasks, strict=True):
         lines.append(f"| {row['log']} | {task} | {_fmt(row['seed'])} | {row['steps']} | {_fmt(row['reward'], 1)} "
                      f"| {_fmt(row['success'])} | {_fmt(row['collision'])} | {_fmt(row['time_s'], 1)} "
-                     f"| {_fmt(row['speed_m_s'])} | {_fmt(row['exit'])} | {row['end']} |")
+                     f"| {_fmt(row['speed_m_s'])} | {_fmt(row['jerk_p95_m_s3'])} | {_fmt(row['jerk_max_m_s3'])} "
+                     f"| {_fmt(row['accel_p95_m_s2'])} | {_fmt(row['exit'])} | {row['end']} |")
     lines += damaged
     if rows:
         s = summarize(rows)
         lines.append(f"| **all {len(rows)} complete** | | | {sum(r['steps'] for r in rows)} "
                      f"| {s['avg_reward']:.1f} (mean) | {s['success_pct']:.0f}% | {s['collision_pct']:.0f}% "
-                     f"| {s['avg_time_s']:.1f} (mean) | {s['avg_speed_m_s']:.2f} (mean) | | |")
+                     f"| {s['avg_time_s']:.1f} (mean) | {s['avg_speed_m_s']:.2f} (mean) "
+                     f"| {_mean(s, 'avg_jerk_p95_m_s3')} | {_mean(s, 'avg_jerk_max_m_s3')} "
+                     f"| {_mean(s, 'avg_accel_p95_m_s2')} | | |")
     if problems:
         lines += ["", "Problems:", *[f"- {p}" for p in problems]]
     return "\n".join(lines)

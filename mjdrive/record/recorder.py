@@ -14,25 +14,31 @@ Topics (log times: the episode's wall-clock start + simulated time, so plots sta
 | --- | --- | --- |
 | /tf | foxglove.FrameTransforms | world -> ego (chassis, 3D) and ego -> camera_front (optical frame), every step |
 | /scene/road | foxglove.SceneUpdate | once: lane surfaces, paved areas, markings, crosswalks (frame world) |
-| /scene/route | foxglove.SceneUpdate | once: route centre line and waypoints |
+| /scene/route | foxglove.SceneUpdate | once: route centre line, waypoints; urban: scenario segments, labelled |
 | /scene/ego | foxglove.SceneUpdate | once: the ego box, locked to frame ego |
-| /scene/road_users | foxglove.SceneUpdate | every step while there are road users: boxes coloured by kind |
+| /scene/road_users | foxglove.SceneUpdate | every step while there are road users: boxes by kind (+ intentions) |
 | /camera/front | foxglove.CompressedImage | every `camera_every`-th step (optional), JPEG or PNG |
 | /camera/front/calibration | foxglove.CameraCalibration | with every image |
-| /ego/state | JSON mjdrive.EgoState | every step: pose, speed, accelerations, jerk, steering, commands, lane errors |
+| /ego/state | JSON mjdrive.EgoState | every step: pose, speed, accel, jerk, steering, commands, lane errors, scenario |
 | /action | JSON mjdrive.Action | every step: the (throttle, steer, brake) applied, exact float64 |
 | /reward | JSON mjdrive.Reward | every step: reward, return, `task.reward_terms` |
 | /physics | protobuf mjdrive.PhysicsState | every step: time, qpos, qvel, act, mocap (exact, for replay) |
-| /episode | JSON mjdrive.EpisodeSummary | once at the end: `task.info` + steps, return, speeds |
+| /episode | JSON mjdrive.EpisodeSummary | once at the end: `task.info` + steps, return, mean speed, comfort |
 | /sensors/depth | foxglove.RawImage 32FC1 | every step of an env with the `depth` sensor (`sensors=`): [m] |
 | /sensors/segmentation | foxglove.RawImage mono8 | every step with `segmentation`: class index x SEGMENT_SCALE |
 | /sensors/range | foxglove.LaserScan | every step with `range`: the ring's ranges [m], frame ego, first ray ahead |
 
-/tf, /ego/state, /physics and /scene/road_users also carry the state right after reset (step 0), so they
-hold steps + 1 messages; /action and /reward hold one per step. MCAP metadata "mjdrive" (written first)
-holds what replay needs: task, task and environment kwargs (the task kwargs always name the physics step,
-`physics_dt` [s]), seed, the task's RNG state at reset, package versions; metadata "summary" (written last)
-repeats /episode. Metadata values are JSON strings.
+/tf, /ego/state, /physics and /scene/road_users also carry the state right after reset (step 0), so they hold
+steps + 1 messages; /action and /reward hold one per step. /ego/state's accelerations are the IMU's at that
+instant (`Vehicle.acceleration`) and its jerks their finite differences over the control step: raw signals to
+plot. The episode's comfort metrics in /episode (`jerk_p95_m_s3`, ... as in the summary schema,
+docs/summary.md) are `mjdrive.comfort`'s, from the samples the task's own metrics use (the chassis' planar
+velocity and yaw, `DrivingTask.comfort_sample`, every control step), so they equal those of `task.info`.
+/ego/state's `scenario` is the urban tasks' active scenario (null on other tasks); urban road users carry a
+label with their intentions (`mjdrive.traffic.intentions`), coloured by the one in the active scenario. MCAP
+metadata "mjdrive" (written first) holds what replay needs: task, task and environment kwargs (the task kwargs
+always name the physics step, `physics_dt` [s]), seed, the task's RNG state at reset, package versions;
+metadata "summary" (written last) repeats /episode. Metadata values are JSON strings.
 
 Live: with `RecordOptions(live_port=...)` the recorder also serves its channels on a Foxglove WebSocket
 server (foxglove-sdk, bound to `live_host`, 127.0.0.1 by default) while it writes the files; a client that
@@ -42,6 +48,7 @@ subscribes to a scene topic mid-episode gets the static scene again at the next 
 from __future__ import annotations
 
 import base64
+import dataclasses
 import functools
 import io
 import json
@@ -60,7 +67,9 @@ import numpy as np
 from foxglove import messages as fm
 from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 
+from mjdrive.comfort import ComfortMeter
 from mjdrive.record import proto, scene
+from mjdrive.record.summary import comfort_fields
 
 FORMAT_VERSION = 1
 CAMERA_FRAME = "camera_front"
@@ -148,7 +157,9 @@ def _json_schema(title: str, properties: dict[str, str]) -> dict:
 
 def _jsonable(value: Any) -> Any:
     """Plain JSON values of an info dict entry (numpy scalars and arrays converted), else its repr."""
-    if isinstance(value, (bool, int, float, str)) or value is None:
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None  # JSON has no NaN or inf
+    if isinstance(value, (bool, int, str)) or value is None:
         return value
     if isinstance(value, np.generic):
         return value.item()
@@ -165,7 +176,7 @@ _EGO_STATE = _json_schema("mjdrive.EgoState", {
     "t": "number", "x": "number", "y": "number", "yaw": "number", "speed": "number", "yaw_rate": "number",
     "accel_long": "number", "accel_lat": "number", "jerk_long": "number", "jerk_lat": "number", "jerk": "number",
     "steering_angle": "number", "throttle": "number", "steer": "number", "brake": "number",
-    "lane_offset": "number", "heading_error": "number"})
+    "lane_offset": "number", "heading_error": "number", "scenario": "string"})
 _ACTION = _json_schema("mjdrive.Action", {"throttle": "number", "steer": "number", "brake": "number"})
 _REWARD = _json_schema("mjdrive.Reward", {"reward": "number", "return": "number", "terms": "object"})
 _SUMMARY = _json_schema("mjdrive.EpisodeSummary", {"steps": "integer", "return": "number"})
@@ -264,6 +275,7 @@ class EpisodeRecorder:
         self._renderer = None  # (model, CameraRenderer) for camera images
         self._last_task_info: dict | None = None
         self._kind_colors = scene.KindColors()
+        self._intention_labels = scene.IntentionLabels()
         self._task_kwargs_json, self.replayable = self._kwargs_json(spec.task_kwargs)
         env_json, env_ok = self._kwargs_json(spec.environment_kwargs)
         self._environment_kwargs_json, self.replayable = env_json, self.replayable and env_ok
@@ -271,6 +283,8 @@ class EpisodeRecorder:
         self._write_options = MCAPWriteOptions(compression=compression, chunk_size=self.options.chunk_size,
                                                profile="", compression_threads=0)
         self._sensor_channels: _SensorChannels | None = None
+        self._comfort = ComfortMeter()  # the episode's comfort samples, as the task's (`task.comfort_sample`)
+        self._control_dt: float | None = None  # [s] the task's control period (`task.control_dt`)
         self.server = None  # Foxglove WebSocket server streaming this recorder's channels (options.live_port)
         self._scene_due = threading.Event()
         if self.options.live_port is not None:
@@ -349,9 +363,11 @@ class EpisodeRecorder:
         data, model = physics.data.ptr, physics.model.ptr
         self._t0 = time.time_ns()
         self._seed, self._steps, self._return = seed, 0, 0.0
-        self._speed_sum, self._max_jerk, self._max_accel_lat = 0.0, 0.0, 0.0
+        self._speed_sum = 0.0
         self._prev_accel: tuple[float, float] | None = None
-        self._prev_time = float(data.time)
+        self._prev_time = self._start_time = float(data.time)
+        self._comfort.reset()
+        self._control_dt = getattr(task, "control_dt", None)
         self._users_shown = False
         c = self._model_constants(task, model)
         meta = {
@@ -427,8 +443,7 @@ class EpisodeRecorder:
             "task": self.spec.name, "episode": self.episode, "seed": self._seed, "steps": self._steps,
             "return": self._return, "terminated": bool(terminated), "truncated": bool(truncated),
             "interrupted": bool(interrupted), "sim_time": self._prev_time,  # [s]
-            "mean_speed_m_s": mean_speed, "max_abs_jerk_m_s3": self._max_jerk,
-            "max_abs_accel_lat_m_s2": self._max_accel_lat,
+            "mean_speed_m_s": mean_speed, **self._comfort_summary(),
             "info": {str(k): _jsonable(v) for k, v in (info or {}).items()},
         }
         ns = self._t0 + _ns(self._prev_time)
@@ -440,6 +455,13 @@ class EpisodeRecorder:
         self._part = None
         self.paths.append(final)
         return final
+
+    def _comfort_summary(self) -> dict[str, float | None]:
+        """The episode's comfort metrics under the summary schema's row names (None: too short to filter):
+        sampled every control period, the task's `control_dt` [s] (else the mean step of the log)."""
+        dt = self._control_dt or (self._prev_time - self._start_time) / max(self._steps, 1)
+        metrics = self._comfort.metrics(dt) if dt > 0 else None
+        return comfort_fields({} if metrics is None else dataclasses.asdict(metrics))
 
     def close(self) -> None:
         """End an open episode (interrupted) and free the camera renderer."""
@@ -526,25 +548,28 @@ class EpisodeRecorder:
         self._prev_accel, self._prev_time = (accel_long, accel_lat), t
         if action is not None:
             self._speed_sum += speed
-            self._max_jerk = max(self._max_jerk, jerk)
-            self._max_accel_lat = max(self._max_accel_lat, abs(accel_lat))
+        task.sample_comfort(data, self._comfort)  # the task's samples (those of its info's comfort metrics)
         lane_offset = getattr(task, "lane_offset", None)
         heading_error = getattr(task, "heading_error", None)
         if lane_offset is None or heading_error is None:  # a task without its own lane frame: ask the map
             query = task.road_map.locate((x, y), yaw)
             lane_offset, heading_error = query.d, query.heading_error
         throttle, steer, brake = action if action is not None else (0.0, 0.0, 0.0)
+        active_scenario = getattr(task, "active_scenario", None)  # urban tasks
+        scenario = active_scenario() if active_scenario is not None else None
         state = {"t": t, "x": x, "y": y, "yaw": yaw, "speed": speed, "yaw_rate": vehicle.yaw_rate(data),
                  "accel_long": accel_long, "accel_lat": accel_lat, "jerk_long": jerk_long, "jerk_lat": jerk_lat,
                  "jerk": jerk, "steering_angle": vehicle.steering_angle(data), "throttle": throttle,
                  "steer": steer, "brake": brake, "lane_offset": float(lane_offset),
-                 "heading_error": float(heading_error)}
+                 "heading_error": float(heading_error), "scenario": scenario}
         ch.state.log(json.dumps(state).encode(), ns)
         ch.physics.log(c["physics"].encode(data), ns)
 
         users = task.road_users()
         if len(users.kinds) or self._users_shown:
             body = self._cubes.encode(users.poses, users.half_sizes, self._kind_colors(users.kinds))
+            if users.intentions is not None:
+                body += self._intention_labels(users, scenario)
             head = proto.entity_head(ns, scene.WORLD, "road_users")
             ch.users.log(proto.scene_update_bytes(head, body), ns)
             self._users_shown = len(users.kinds) > 0

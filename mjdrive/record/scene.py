@@ -1,5 +1,6 @@
 """3D scene content for Foxglove: the road (once per file, encoded once per map), the route and its
-waypoints (once per episode), the ego box (locked to the "ego" frame) and road-user colours."""
+waypoints (once per episode; urban tasks: the tactical trajectory's scenario segments, coloured and labelled),
+the ego box (locked to the "ego" frame), road-user colours and the urban road users' intention labels."""
 
 from __future__ import annotations
 
@@ -9,9 +10,12 @@ import numpy as np
 from foxglove import messages as fm
 
 from mjdrive.roads import Marking, RoadMap
+from mjdrive.traffic import intentions
 
 WORLD, EGO = "world", "ego"  # frame ids
 ROAD_Z, MARKING_Z, ROUTE_Z = 0.01, 0.02, 0.05  # [m] drawing heights (above MuJoCo's road meshes)
+SCENARIO_Z, LABEL_Z = 0.08, 1.0  # [m] scenario segments; labels above a road user's roof (+ its height)
+SCENARIO_WIDTH, SCENARIO_STEP = 1.2, 1.0  # [m] scenario segments' line width and point spacing
 MARKING_WIDTH = 0.15  # [m]
 DASH_ON, DASH_OFF = 3.0, 6.0  # [m] broken-line pattern, as in world.py
 
@@ -26,6 +30,17 @@ KIND_RGBA = {  # road users by kind; other kinds get a stable colour from their 
     "motorcycle": (0.7, 0.2, 0.8, 1.0), "bicycle": (0.2, 0.8, 0.7, 1.0), "cyclist": (0.2, 0.8, 0.7, 1.0),
     "pedestrian": (0.95, 0.3, 0.5, 1.0), "obstacle": (0.5, 0.5, 0.5, 1.0),
 }
+SCENARIO_RGBA = {  # the urban route's scenario segments (tactical trajectory)
+    "roundabout": (0.95, 0.55, 0.1, 0.6), "lane_change": (0.3, 0.85, 0.3, 0.6),
+    "crossroad": (0.9, 0.2, 0.25, 0.6), "merge": (0.65, 0.35, 0.95, 0.6), "follow": (0.6, 0.6, 0.6, 0.4),
+}
+# intention labels: short scenario prefix and value names, columns as `intentions.SCENARIOS`
+INTENTION_NAMES = {
+    "lane_change": ("LC", ("keep", "left", "right")), "crossroad": ("X", ("straight", "left", "right")),
+    "merge": ("M", ("yield", "take way")), "roundabout": ("R", ("before", "after")),
+}
+INTENTION_RGBA = ((0.3, 0.95, 0.3, 1.0), (1.0, 0.6, 0.1, 1.0), (0.95, 0.35, 0.95, 1.0))  # by value 0, 1, 2
+NO_INTENTION_RGBA = (0.95, 0.95, 0.95, 1.0)  # outside the scenarios with intentions
 
 
 def color(rgba: tuple[float, float, float, float]) -> fm.Color:
@@ -127,13 +142,17 @@ def road_entities(road_map: RoadMap) -> list[fm.SceneEntity]:
 
 
 def route_entities(task, stamp: fm.Timestamp | None = None) -> list[fm.SceneEntity]:
-    """The task's route centre line (`task.route_lane`) and waypoints (`task.tracker.points`), if any."""
+    """The task's route centre line (`task.route_lane`), waypoints (`task.tracker.points`) and scenario
+    segments (`task.urban.tactical`), if any."""
     entities = []
     route_lane = getattr(task, "route_lane", None)
     if route_lane is not None:
         entities.append(fm.SceneEntity(timestamp=stamp, frame_id=WORLD, id="route/line", lines=[fm.LinePrimitive(
             type=fm.LinePrimitiveLineType.LineStrip, thickness=0.3,
             points=_points(np.asarray(route_lane.centre), ROUTE_Z), color=color(ROUTE))]))
+    tactical = getattr(getattr(task, "urban", None), "tactical", None)  # urban tasks: the scenario segments
+    if route_lane is not None and tactical is not None:
+        entities.append(scenario_entity(route_lane, tactical, stamp))
     tracker = getattr(task, "tracker", None)
     if tracker is not None and len(tracker.points):
         size = fm.Vector3(x=0.6, y=0.6, z=0.1)
@@ -142,6 +161,60 @@ def route_entities(task, stamp: fm.Timestamp | None = None) -> list[fm.SceneEnti
                                       size=size, color=color(WAYPOINT)) for x, y in tracker.points]
         entities.append(fm.SceneEntity(timestamp=stamp, frame_id=WORLD, id="route/waypoints", spheres=spheres))
     return entities
+
+
+def scenario_entity(route_lane, tactical, stamp: fm.Timestamp | None = None) -> fm.SceneEntity:
+    """The tactical trajectory's scenario intervals along the route line (`route_lane`, a Lane): a wide line
+    per interval coloured by scenario (SCENARIO_RGBA), its name written at its start."""
+    lines, texts = [], []
+    for name, s0, s1 in tactical.intervals:
+        s = np.append(np.arange(s0, s1, SCENARIO_STEP), s1)
+        xy = np.asarray(route_lane.position(s)).reshape(-1, 2)
+        rgba = SCENARIO_RGBA.get(name, kind_rgba(name))
+        lines.append(fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, thickness=SCENARIO_WIDTH,
+                                      points=_points(xy, SCENARIO_Z), color=color(rgba)))
+        texts.append(fm.TextPrimitive(
+            pose=fm.Pose(position=fm.Vector3(x=float(xy[0, 0]), y=float(xy[0, 1]), z=2.0),
+                         orientation=fm.Quaternion(w=1.0)),
+            billboard=True, font_size=16.0, scale_invariant=True, color=color((*rgba[:3], 1.0)), text=name))
+    return fm.SceneEntity(timestamp=stamp, frame_id=WORLD, id="route/scenarios", lines=lines, texts=texts)
+
+
+class IntentionLabels:
+    """Text labels of road users' intentions, e.g. "LC keep | X left | M yield | R after" (pedestrians, whose
+    intentions are -1, get none), coloured by the value in the active scenario (INTENTION_RGBA; white outside
+    the scenarios with intentions). Label bytes are cached per intention row."""
+
+    def __init__(self):
+        self._text: dict[tuple[int, ...], bytes] = {}
+
+    def label(self, row: tuple[int, ...]) -> bytes:
+        text = self._text.get(row)
+        if text is None:
+            parts = []
+            for scenario, value in zip(intentions.SCENARIOS, row, strict=True):
+                prefix, names = INTENTION_NAMES[scenario]
+                parts.append(f"{prefix} {names[value] if 0 <= value < len(names) else value}")
+            text = self._text[row] = " | ".join(parts).encode()
+        return text
+
+    def __call__(self, users, scenario: str | None) -> bytes:
+        """The `texts` fields (`proto.text_fields`) for `users` (a RoadUsers with intentions) when the ego's
+        active scenario is `scenario`."""
+        from mjdrive.record import proto
+
+        rows = np.asarray(users.intentions)
+        labelled = np.flatnonzero((rows >= 0).all(axis=1)) if rows.size else np.zeros(0, int)
+        if not len(labelled):
+            return b""
+        column = intentions.SCENARIOS.index(scenario) if scenario in intentions.SCENARIOS else None
+        rgba = np.empty((len(labelled), 4))
+        for k, i in enumerate(labelled):
+            value = -1 if column is None else int(rows[i, column])
+            rgba[k] = INTENTION_RGBA[value] if 0 <= value < len(INTENTION_RGBA) else NO_INTENTION_RGBA
+        positions = np.column_stack([users.poses[labelled, :2], 2.0 * users.half_sizes[labelled, 2] + LABEL_Z])
+        texts = [self.label(tuple(int(v) for v in rows[i])) for i in labelled]
+        return proto.text_fields(positions, texts, rgba)
 
 
 def ego_entity(length: float, width: float, height: float, stamp: fm.Timestamp | None = None) -> fm.SceneEntity:

@@ -5,11 +5,33 @@ episode with units in the field names, and the means over the rows. docs/summary
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
+from dataclasses import fields
 from typing import Any
 
 import numpy as np
 
+from mjdrive.comfort import ComfortMetrics
+
 SCHEMA = "mjdrive.summary/1"
+
+# ComfortMetrics field -> its row field (units: _m_s2 metres per second squared, _m_s3 per second cubed)
+COMFORT_FIELDS: dict[str, str] = {
+    f.name: f"{f.name}_{'m_s3' if f.name.startswith('jerk') else 'm_s2'}" for f in fields(ComfortMetrics)}
+_COMFORT_MEANING = {
+    "jerk_lon_p95": "95th percentile of the longitudinal jerk's size [m/s^3]",
+    "jerk_lon_max": "largest size of the longitudinal jerk [m/s^3]",
+    "jerk_lat_p95": "95th percentile of the lateral jerk's size [m/s^3]",
+    "jerk_lat_max": "largest size of the lateral jerk [m/s^3]",
+    "jerk_p95": "95th percentile of the jerk's magnitude, hypot(longitudinal, lateral) [m/s^3]",
+    "jerk_max": "largest magnitude of the jerk [m/s^3]",
+    "accel_lon_p95": "95th percentile of the longitudinal acceleration's size [m/s^2]",
+    "accel_lat_p95": "95th percentile of the lateral acceleration's size [m/s^2]",
+    "accel_p95": "95th percentile of the acceleration's magnitude, hypot(longitudinal, lateral) [m/s^2]",
+}
+# the summary's comfort means: (summary field, row field)
+COMFORT_MEANS = (("avg_jerk_p95_m_s3", "jerk_p95_m_s3"), ("avg_jerk_max_m_s3", "jerk_max_m_s3"),
+                 ("avg_accel_p95_m_s2", "accel_p95_m_s2"))
 
 # row field -> what it holds (units in the names: _s seconds, _m metres, _m_s metres per second)
 ROW_FIELDS: dict[str, str] = {
@@ -28,6 +50,7 @@ ROW_FIELDS: dict[str, str] = {
            "terminated (another task rule), interrupted (stopped before the env ended it)",
     "exit": "roundabout: the exit taken, counted from the entry (1 first = right turn, 2 second = straight on, "
             "3 third = left turn); else null",
+    **{row: f"{_COMFORT_MEANING[name]} (comfort, see above; null: unknown)" for name, row in COMFORT_FIELDS.items()},
     "log": "the episode's MCAP file name (null: not recorded)",
 }
 
@@ -44,6 +67,9 @@ SUMMARY_FIELDS: dict[str, str] = {
     "route_completion_mean": "mean route_completion, 0..1 (waypoints tasks only)",
     "route_completion_min": "lowest route_completion (waypoints tasks only)",
     "route_completion_max": "highest route_completion (waypoints tasks only)",
+    "avg_jerk_p95_m_s3": "mean of the rows' jerk_p95_m_s3 [m/s^3] (rows with a value)",
+    "avg_jerk_max_m_s3": "mean of the rows' jerk_max_m_s3 [m/s^3] (rows with a value)",
+    "avg_accel_p95_m_s2": "mean of the rows' accel_p95_m_s2 [m/s^2] (rows with a value)",
 }
 
 
@@ -84,6 +110,11 @@ def relative_exit(info: dict, arms: int | None) -> int | None:
     return (int(info["exit"]) - int(info["entry"]) - 1) % arms + 1
 
 
+def _finite(value: Any) -> float | None:
+    """A finite float, or None (for None, NaN and inf)."""
+    return None if value is None or not math.isfinite(float(value)) else float(value)
+
+
 def _number(value: Any, digits: int) -> float | None:
     if value is None:
         return None
@@ -91,11 +122,25 @@ def _number(value: Any, digits: int) -> float | None:
     return round(value, digits) if math.isfinite(value) else None
 
 
+def comfort_fields(metrics: Mapping[str, Any]) -> dict[str, float | None]:
+    """The row fields (COMFORT_FIELDS) of comfort metrics keyed by `ComfortMetrics` field name (None where
+    missing or NaN), at full precision."""
+    return {row: _finite(metrics.get(name)) for name, row in COMFORT_FIELDS.items()}
+
+
+def info_comfort(info: Mapping[str, Any]) -> dict[str, Any]:
+    """The comfort metrics of a task's `info` (keys of `ComfortMetrics.as_dict()`) by field name."""
+    units = ComfortMetrics.nan().as_dict()
+    return {key.rsplit("_", 1)[0]: info[key] for key in units if key in info}
+
+
 def episode_row(info: dict, *, episode: int, seed: int | None, reward: float, steps: int, terminated: bool,
                 truncated: bool, control_dt: float, interrupted: bool = False, arms: int | None = None,
-                log: str | None = None) -> dict[str, Any]:
+                log: str | None = None, comfort: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """One row of the schema from an episode's last `info` (the task's metrics), its return and steps;
-    `control_dt` [s] gives the time of a task whose info lacks `elapsed_time`."""
+    `control_dt` [s] gives the time of a task whose info lacks `elapsed_time`. `comfort`: the comfort metrics
+    by `ComfortMetrics` field name (default: those in `info`, which a task has at its episode's end)."""
+    comfort = info_comfort(info) if comfort is None else comfort
     time_s = float(info.get("elapsed_time", steps * control_dt))
     distance = info.get("distance")
     completion = info.get("route_completion")
@@ -107,7 +152,9 @@ def episode_row(info: dict, *, episode: int, seed: int | None, reward: float, st
         "success": bool(info.get("success", False)), "collision": bool(info.get("collision", False)),
         "off_road": bool(info.get("off_road", False)),
         "end": end_reason(info, terminated, truncated, interrupted),
-        "exit": relative_exit(info, arms), "log": log,
+        "exit": relative_exit(info, arms),
+        **{row: _number(value, 3) for row, value in comfort_fields(comfort).items()},
+        "log": log,
     }
     return row
 
@@ -133,6 +180,9 @@ def summarize(rows: list[dict]) -> dict[str, float]:
         out.update({"route_completion_mean": round(float(np.mean(completion)), 4),
                     "route_completion_min": round(float(np.min(completion)), 4),
                     "route_completion_max": round(float(np.max(completion)), 4)})
+    for name, key in COMFORT_MEANS:
+        if any(row.get(key) is not None for row in rows):
+            out[name] = round(float(np.mean([row[key] for row in rows if row.get(key) is not None])), 3)
     return out
 
 

@@ -197,13 +197,14 @@ class DrivingTask(control.Task):
     def reset_comfort(self, physics: Physics) -> None:
         """Start the episode's comfort samples with the state after reset."""
         self.comfort.reset()
-        self.sample_comfort(physics)
+        self.sample_comfort(physics.raw_data)
 
-    def sample_comfort(self, physics: Physics) -> None:
-        """Add the state after a control step to the comfort samples (a non-finite state is left out)."""
-        velocity, yaw = self.comfort_sample(physics.raw_data)
+    def sample_comfort(self, data: mujoco.MjData, meter: ComfortMeter | None = None) -> None:
+        """Add the state of `data` after a control step to `meter` (default: the task's `comfort`; the
+        recorder keeps its own); a non-finite state is left out."""
+        velocity, yaw = self.comfort_sample(data)
         if math.isfinite(yaw) and np.isfinite(velocity).all():
-            self.comfort.add(velocity, yaw)
+            (self.comfort if meter is None else meter).add(velocity, yaw)
 
     def comfort_metrics(self) -> dict[str, float]:
         """The episode's comfort metrics so far (`ComfortMetrics.as_dict()`; NaN when too short to filter,
@@ -299,6 +300,6 @@ class DrivingEnvironment(control.Environment):
     def end_step_comfort(self, last: bool) -> None:
         """After a control step: sample the task's comfort meter; at the episode's last step put the comfort
         metrics into `info` (also called by the batched env, which steps the physics itself)."""
-        self.task.sample_comfort(self.physics)
+        self.task.sample_comfort(self.physics.raw_data)
         if last:
             self.task.info.update(self.task.comfort_metrics())
