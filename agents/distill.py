@@ -8,7 +8,7 @@ Iteration 0 lets the teacher drive; later iterations let the student drive (so i
 own mistakes lead to), and every iteration retrains on all samples so far. The result is an ordinary "sac"
 policy checkpoint: `mjdrive eval` and tools/roundabout_table3.py read it like any other.
 
-    python -m agents.distill --teacher results/checkpoints/sac_features_roundabout.pt \\
+    python -m mjdrive.agents.distill --teacher results/checkpoints/sac_features_roundabout.pt \\
         --student sac_roundabout_camera_state --out runs/distill_camera
 """
 
@@ -23,9 +23,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from agents.common import ObsBatch, apply_overrides, load_config, save_checkpoint, set_seed, split_task
-from agents.evaluate import load_agent
-from agents.sac import SACAgent
+from mjdrive.agents.common import ObsBatch, apply_overrides, load_config, save_checkpoint, set_seed, split_task
+from mjdrive.agents.evaluate import load_agent
+from mjdrive.agents.sac import SACAgent
 from mjdrive.envs import make_env
 
 DEFAULTS = {

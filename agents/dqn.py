@@ -14,7 +14,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from agents.common import Encoder, ObsBatch, load_module_state, load_optimizer_state, mlp
+from mjdrive.agents.common import Encoder, ObsBatch, load_module_state, load_optimizer_state, mlp
 from mjdrive.envs.batched import ObservationLayout
 
 DEFAULTS = {

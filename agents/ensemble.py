@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.common import CheckpointError, load_checkpoint, save_checkpoint, split_task
+from mjdrive.agents.common import CheckpointError, load_checkpoint, save_checkpoint, split_task
 
 RULES = ("mean", "min_pedal")
 CONTINUOUS_ACTIONS = ("continuous", "pedal")  # action sets whose actions can be averaged
@@ -65,7 +65,7 @@ class EnsembleAgent:
 
 def ensemble_agent(payload: dict, path: str | Path) -> EnsembleAgent:
     """The acting ensemble of the ensemble checkpoint at `path` (its loaded `payload`)."""
-    from agents.evaluate import agent_from_payload
+    from mjdrive.agents.evaluate import agent_from_payload
 
     state = payload["state"]
     if state.get("rule") not in RULES:

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from agents.common import CheckpointError, load_checkpoint, parse_yaml, split_task
-from agents.train import agent_class
+from mjdrive.agents.common import CheckpointError, load_checkpoint, parse_yaml, split_task
+from mjdrive.agents.train import agent_class
 from mjdrive.envs import make_env
 from mjdrive.record.summary import SCHEMA, episode_row, roundabout_arms, summarize
 
@@ -23,7 +23,7 @@ def load_agent(path: str | Path) -> tuple[Any, dict]:
     """(agent ready to act, checkpoint payload) from a full checkpoint, a policy.pt or an ensemble."""
     payload = load_checkpoint(path)
     if payload["algo"] == "ensemble":
-        from agents.ensemble import ensemble_agent
+        from mjdrive.agents.ensemble import ensemble_agent
 
         return ensemble_agent(payload, path), payload
     return agent_from_payload(payload, str(path)), payload
@@ -217,7 +217,7 @@ def to_markdown(result: dict) -> str:
         "",
     ]
     if result.get("ensemble"):
-        from agents.ensemble import describe
+        from mjdrive.agents.ensemble import describe
 
         lines += [f"This is {describe(result['ensemble'])}; the steps above are its longest-trained member's.", ""]
     if result["task"].startswith("roundabout"):

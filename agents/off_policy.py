@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from agents.common import ObsBatch, ReplayBuffer, Run, bounded_action_map, training_tasks
+from mjdrive.agents.common import ObsBatch, ReplayBuffer, Run, bounded_action_map, training_tasks
 from mjdrive.envs.vector import VecEnv
 
 DEMONSTRATION_DEFAULTS = {

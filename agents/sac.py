@@ -20,7 +20,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from agents.common import Encoder, ObsBatch, bounded_action_map, load_module_state, load_optimizer_state, mlp
+from mjdrive.agents.common import Encoder, ObsBatch, bounded_action_map, load_module_state, load_optimizer_state, mlp
 from mjdrive.envs.batched import ObservationLayout
 
 DEFAULTS = {

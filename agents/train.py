@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from agents.common import (
+from mjdrive.agents.common import (
     CheckpointError,
     ReplayBuffer,
     Run,
@@ -75,7 +75,7 @@ def load_initial_state(path: str | Path, config: dict) -> tuple[dict, int, bool]
                               + (", or set algorithm.critic_warmup > 0 so that new critics learn before the actor"
                                  if algo == "sac" else ""))
     check_resumable(payload["config"], config, ("algo", "actions"), f"start from {path}")
-    from agents.sac import DEFAULTS
+    from mjdrive.agents.sac import DEFAULTS
 
     def network(settings: dict) -> dict:
         return {key: {**DEFAULTS, **settings.get("algorithm", {})}[key] for key in SAC_NETWORK_KEYS}
@@ -86,7 +86,7 @@ def load_initial_state(path: str | Path, config: dict) -> tuple[dict, int, bool]
 
 
 def make_training_env(config: dict, num_envs: int | None = None, **overrides):
-    """The vector env a config describes (`agents.common.make_batched_env`'s keys), in this process, or with
+    """The vector env a config describes (`mjdrive.agents.common.make_batched_env`'s keys), in this process, or with
     `workers: N` over N worker processes, or with `ray: ADDRESS` ("local", "auto", HOST:PORT) over N Ray actors
     (`mjdrive.envs.vector`); every backend gives the same episodes."""
     workers, address = int(config.get("workers") or 0), config.get("ray")
@@ -104,19 +104,19 @@ def make_training_env(config: dict, num_envs: int | None = None, **overrides):
 def agent_class(algo: str):
     """The acting/learning class of `algo` (imported lazily: PPO pulls rsl-rl in)."""
     if algo == "sac":
-        from agents.sac import SACAgent
+        from mjdrive.agents.sac import SACAgent
 
         return SACAgent
     if algo == "dqn":
-        from agents.dqn import DQNAgent
+        from mjdrive.agents.dqn import DQNAgent
 
         return DQNAgent
     if algo == "ppo":
-        from agents.ppo import PPOAgent
+        from mjdrive.agents.ppo import PPOAgent
 
         return PPOAgent
     if algo == "trpo":
-        from agents.trpo import TRPOAgent
+        from mjdrive.agents.trpo import TRPOAgent
 
         return TRPOAgent
     raise ValueError(f"unknown algo {algo!r}; valid: {', '.join(ALGOS)}")
@@ -156,15 +156,20 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
     stack = contextlib.ExitStack()
     try:
         if algo == "ppo":
-            from agents import ppo
+            from mjdrive.agents import ppo
 
             ppo.train(config, run, state)
         elif algo == "trpo":
-            from agents import trpo
+            from mjdrive.agents import trpo
 
             trpo.train(config, run, state)
         else:
-            from agents.off_policy import REPLAY_DIR, collect_demonstrations, demonstration_settings, run_off_policy
+            from mjdrive.agents.off_policy import (
+                REPLAY_DIR,
+                collect_demonstrations,
+                demonstration_settings,
+                run_off_policy,
+            )
 
             env = make_training_env(config)
             stack.callback(env.close)
@@ -216,7 +221,7 @@ def export_policy(checkpoint: str | Path, out: str | Path) -> Path:
 
 def train_command(args) -> int:
     """`mjdrive train` (argument parsing lives in mjdrive/cli.py)."""
-    from agents.common import apply_overrides, load_config
+    from mjdrive.agents.common import apply_overrides, load_config
 
     config = load_config(args.config or args.algo)
     if args.config is None and config.get("algo") != args.algo:

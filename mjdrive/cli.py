@@ -375,7 +375,7 @@ def cmd_train(args) -> int:
     from mjdrive.progress import Starting
 
     with Starting("mjdrive train: loading torch, the config and the envs"):
-        from agents.train import train_command  # needs the `learn` extra (torch, rsl-rl)
+        from mjdrive.agents.train import train_command  # needs the `learn` extra (torch, rsl-rl)
 
         return train_command(args)
 
@@ -397,11 +397,11 @@ def cmd_eval(args) -> int:
 
     _say_when_not_a_terminal("mjdrive eval: loading torch and checking the checkpoint ...")
     with Starting("mjdrive eval: loading torch and checking the checkpoint", terminal_only=True):
-        from agents.common import load_checkpoint
+        from mjdrive.agents.common import load_checkpoint
 
         load_checkpoint(args.checkpoint)  # a bad file is a one-line error, before any status line in a log
     with Starting("mjdrive eval: loading the policy and the env"):
-        from agents.evaluate import eval_command
+        from mjdrive.agents.evaluate import eval_command
 
         return eval_command(args)
 
@@ -411,7 +411,7 @@ def cmd_ensemble(args) -> int:
 
     _say_when_not_a_terminal("mjdrive ensemble: loading torch and the members ...")
     with Starting("mjdrive ensemble: loading torch and the members", terminal_only=True):
-        from agents.ensemble import ensemble_command
+        from mjdrive.agents.ensemble import ensemble_command
 
         return ensemble_command(args)
 

@@ -9,15 +9,15 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("rsl_rl")
 
-from agents.common import (  # noqa: E402
+from mjdrive.agents.common import (  # noqa: E402
     CheckpointError,
     apply_overrides,
     load_checkpoint,
     load_config,
     save_checkpoint,
 )
-from agents.evaluate import evaluate, load_agent, to_markdown  # noqa: E402
-from agents.train import agent_class, train  # noqa: E402
+from mjdrive.agents.evaluate import evaluate, load_agent, to_markdown  # noqa: E402
+from mjdrive.agents.train import agent_class, train  # noqa: E402
 from mjdrive.envs.batched import BatchedEnv  # noqa: E402
 
 SMALL = ["num_envs=2", "nthread=1", "checkpoint_every=128", "log_every=50", "tensorboard=false",
@@ -156,7 +156,7 @@ def test_resumed_off_policy_run_refills_its_buffer_before_updating(tmp_path):
 
 
 def test_replay_buffer_saves_and_loads_its_transitions_including_after_wrapping(tmp_path):
-    from agents.common import ReplayBuffer
+    from mjdrive.agents.common import ReplayBuffer
     from mjdrive.envs.batched import ObservationLayout
 
     config = _config("sac", CAMERA)
@@ -341,7 +341,7 @@ def test_rsl_rl_vecenv_groups_actions_and_time_outs():
 
 
 def test_random_shift_moves_each_frame_stack_by_its_own_offset_with_edge_padding():
-    from agents.common import random_shift
+    from mjdrive.agents.common import random_shift
 
     image = torch.arange(2 * 3 * 20 * 20, dtype=torch.int64).reshape(2, 3, 20, 20).to(torch.float32)
     shifted = random_shift(image, 4, generator=torch.Generator().manual_seed(0))
@@ -368,7 +368,7 @@ def test_sac_actor_reads_the_critics_encoder_and_only_the_critic_trains_it():
     encoder_ids = {id(p) for p in agent.critic.encoder.parameters()}
     actor_ids = {id(p) for group in agent.actor_optimizer.param_groups for p in group["params"]}
     assert encoder_ids and not encoder_ids & actor_ids  # the actor's optimizer never steps the encoder
-    from agents.common import ObsBatch
+    from mjdrive.agents.common import ObsBatch
 
     def batch():
         return ObsBatch(torch.randn(8, 3), torch.randint(0, 256, (8, 3, 32, 32), dtype=torch.uint8))
@@ -384,7 +384,7 @@ def test_sac_actor_reads_the_critics_encoder_and_only_the_critic_trains_it():
 def test_sac_bc_alpha_pulls_the_actor_towards_the_demonstrated_actions():
     """TD3+BC's term: with bc_alpha > 0 the greedy action moves to the demonstrations' actions (the batch rows
     flagged `demonstration`; the others are ignored), without it it need not."""
-    from agents.common import ObsBatch
+    from mjdrive.agents.common import ObsBatch
 
     env = BatchedEnv("waypoints", "straight", num_envs=1)
     states = torch.randn(16, 18)  # 15 waypoint angles, heading error, lane offset, speed
@@ -411,7 +411,7 @@ def test_sac_bc_alpha_pulls_the_actor_towards_the_demonstrated_actions():
 
 
 def test_episode_log_is_flushed_as_episodes_end_and_resume_drops_later_rows(tmp_path):
-    from agents.common import Run
+    from mjdrive.agents.common import Run
 
     def ended(n):
         return [{"episode_return": float(i), "episode_length": 10, "success": False, "task": "roundabout/d120"}
@@ -484,7 +484,7 @@ def test_select_checkpoint_ranks_a_runs_checkpoints_and_exports_the_chosen_one(t
 def test_sac_with_demonstrations_collects_them_and_mixes_them_into_updates(tmp_path, monkeypatch):
     """RLPD-style demonstrations: the scripted driver's transitions are collected first (in the learner's
     action set, rewards scaled), then every update batch holds `fraction` of them."""
-    from agents import off_policy
+    from mjdrive.agents import off_policy
 
     config = _config("sac", ["steps=128", *OFF_POLICY, "task=roundabout/d120", "actions=pedal",
                              "demonstrations={policy: autopilot, steps: 300, fraction: 0.25}"])
@@ -502,7 +502,7 @@ def test_sac_with_demonstrations_collects_them_and_mixes_them_into_updates(tmp_p
     assert summary["episodes"] >= 1 and summary["success"] == summary["episodes"] and summary["collision"] == 0
     assert sizes and set(sizes) == {(12, 4)}  # batch 16, a quarter from the demonstrations
 
-    from agents.common import ReplayBuffer
+    from mjdrive.agents.common import ReplayBuffer
     from mjdrive.envs import make_env
     from mjdrive.envs.batched import ObservationLayout
 
@@ -529,8 +529,8 @@ def test_bad_demonstration_settings_raise_clear_errors(tmp_path):
 def test_demonstrations_go_through_the_mixed_tasks_in_turn(monkeypatch):
     """With `mix_tasks`, the scripted driver's episodes cycle over `task` and `mix_tasks` like the copies do."""
     import mjdrive.envs
-    from agents import off_policy
-    from agents.common import ReplayBuffer
+    from mjdrive.agents import off_policy
+    from mjdrive.agents.common import ReplayBuffer
     from mjdrive.envs.batched import ObservationLayout
 
     make = mjdrive.envs.make_env
@@ -580,7 +580,7 @@ def test_roundabout_table3_scores_every_density_with_task_kwargs_over_the_checkp
     assert "trained on roundabout/d120 + roundabout/d140 {" in report
     assert "'collision_penalty': 300" in report and "scored with {'time_limit': 1, 'collision_penalty': 100}" in report
     # an ensemble reads like a policy and the report names its members
-    from agents.ensemble import save_ensemble
+    from mjdrive.agents.ensemble import save_ensemble
 
     ensemble = save_ensemble([run / "policy.pt", run / "checkpoint.pt"], "min_pedal", tmp_path / "ensemble.pt")
     tool.main(["--agent", "SACx2", str(ensemble), "--episodes", "1", "--levels", "d120", "--task-kwarg",

@@ -17,8 +17,8 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from agents.common import CheckpointError, load_checkpoint, save_checkpoint  # noqa: E402
-from agents.evaluate import load_agent  # noqa: E402
+from mjdrive.agents.common import CheckpointError, load_checkpoint, save_checkpoint  # noqa: E402
+from mjdrive.agents.evaluate import load_agent  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 COMMITTED = sorted((ROOT / "results" / "checkpoints").glob("*.pt"))

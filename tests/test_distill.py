@@ -7,9 +7,9 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from agents.common import apply_overrides, load_config  # noqa: E402
-from agents.distill import distill  # noqa: E402
-from agents.evaluate import evaluate, load_agent  # noqa: E402
+from mjdrive.agents.common import apply_overrides, load_config  # noqa: E402
+from mjdrive.agents.distill import distill  # noqa: E402
+from mjdrive.agents.evaluate import evaluate, load_agent  # noqa: E402
 
 TEACHER = "results/checkpoints/sac_features_roundabout.pt"  # committed: SAC on the features observation
 SMALL = ["task=roundabout/d120", "task_kwargs.image_size=32",

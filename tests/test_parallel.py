@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agents.common import apply_overrides, load_config
-from agents.evaluate import evaluate
-from agents.train import train
+from mjdrive.agents.common import apply_overrides, load_config
+from mjdrive.agents.evaluate import evaluate
+from mjdrive.agents.train import train
 from mjdrive.envs.vector import RayVecEnv, SubprocessVecEnv, WorkerDied, make_vec_env
 from mjdrive.record import proto
 from mjdrive.record.reader import read_episode
@@ -252,7 +252,7 @@ def test_training_with_workers_learns_from_the_same_episodes(algo, tmp_path):
     process (SAC: the off-policy loop DQN shares; PPO: rsl-rl through RslRlVecEnv)."""
     import torch
 
-    from agents.common import load_checkpoint
+    from mjdrive.agents.common import load_checkpoint
 
     name, overrides = TRAINING[algo]
     config = apply_overrides(load_config(name), [*overrides, "num_envs=2", "tensorboard=false", "checkpoint_every=1000",

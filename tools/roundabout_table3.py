@@ -25,9 +25,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from agents.common import load_checkpoint  # noqa: E402
-from agents.ensemble import describe  # noqa: E402
-from agents.evaluate import evaluate, parse_task_kwargs  # noqa: E402
+from mjdrive.agents.common import load_checkpoint  # noqa: E402
+from mjdrive.agents.ensemble import describe  # noqa: E402
+from mjdrive.agents.evaluate import evaluate, parse_task_kwargs  # noqa: E402
 from mjdrive.tasks.roundabout import DENSITIES  # noqa: E402
 
 # Table 3 of the study (Ben Elallid et al. 2024): density -> (avg reward, time s, speed m/s, distance m,

@@ -27,8 +27,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from agents.evaluate import evaluate  # noqa: E402
-from agents.train import export_policy  # noqa: E402
+from mjdrive.agents.evaluate import evaluate  # noqa: E402
+from mjdrive.agents.train import export_policy  # noqa: E402
 
 
 def run_checkpoints(run_dir: Path, first: int = 0, last: int | None = None) -> list[tuple[int, Path]]:
