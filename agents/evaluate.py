@@ -16,7 +16,15 @@ from typing import Any
 from mjdrive.agents.common import CheckpointError, load_checkpoint, parse_yaml, split_task
 from mjdrive.agents.train import agent_class
 from mjdrive.envs import make_env
-from mjdrive.record.summary import SCHEMA, episode_row, roundabout_arms, summarize
+from mjdrive.record.summary import (
+    COMFORT_COLUMNS,
+    SCHEMA,
+    comfort_cells,
+    comfort_line,
+    episode_row,
+    roundabout_arms,
+    summarize,
+)
 
 
 def load_agent(path: str | Path) -> tuple[Any, dict]:
@@ -238,16 +246,17 @@ def to_markdown(result: dict) -> str:
             f"{100 * s['route_completion_max']:.1f}% | {s['success_pct']:.0f} | {s['collision_pct']:.0f} | "
             f"{s['avg_reward']:.1f} | {s['avg_time_s']:.2f} | {s['avg_speed_m_s']:.2f} |",
         ]
+    lines += ["", comfort_line(s)] if comfort_line(s) else []
     lines += [
         "",
-        "| episode | seed | route completion | reward | steps | time (s) | distance (m) | end |",
-        "| ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |",
+        f"| episode | seed | route completion | reward | steps | time (s) | distance (m) {COMFORT_COLUMNS}| end |",
+        "| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |",
     ]
     for row in result["rows"]:
         completion = "-" if row["route_completion"] is None else f"{100 * row['route_completion']:.1f}%"
         lines.append(f"| {row['episode']} | {row['seed']} | {completion} | "
                      f"{row['reward']:.1f} | {row['steps']} | {row['time_s']:.1f} | {row['distance_m']:.1f} "
-                     f"| {row['end']} |")
+                     f"{comfort_cells(row)}| {row['end']} |")
     return "\n".join(lines)
 
 

@@ -189,3 +189,17 @@ def test_layout_plots_acceleration_jerk_and_the_scenario_from_ego_state():
     shown = {path["value"] for key in ("Plot!accel", "Plot!jerk", "StateTransitions!scenario")
              for path in layout[key]["paths"]}
     assert shown == {f"/ego/state.{name}" for name in fields}
+
+
+def test_eval_rows_summary_and_markdown_show_comfort(tmp_path):
+    from mjdrive.agents.evaluate import evaluate, to_markdown
+
+    checkpoint = LAYOUT.parents[2] / "results" / "checkpoints" / "ppo_features_straight.pt"
+    result = evaluate(checkpoint, episodes=2, task_kwargs={"time_limit": 1.0}, record_dir=tmp_path)
+    rows, summary = result["rows"], result["summary"]
+    assert all(row["jerk_p95_m_s3"] is not None and row["accel_p95_m_s2"] > 0.0 for row in rows)
+    assert summary["avg_jerk_max_m_s3"] == pytest.approx(np.mean([row["jerk_max_m_s3"] for row in rows]), abs=1e-3)
+    assert logs_rows(tmp_path)[0] == rows  # eval's rows are those read back from its logs
+    markdown = to_markdown(result)
+    assert f"p95 jerk {summary['avg_jerk_p95_m_s3']:.2f} m/s^3" in markdown and "| p95 jerk (m/s^3) |" in markdown
+    assert f"| {rows[1]['jerk_max_m_s3']:.2f} |" in markdown

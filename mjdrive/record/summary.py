@@ -186,6 +186,24 @@ def summarize(rows: list[dict]) -> dict[str, float]:
     return out
 
 
+COMFORT_COLUMNS = "| p95 jerk (m/s^3) | max jerk (m/s^3) | p95 accel (m/s^2) "  # markdown headers of comfort_cells
+
+
+def comfort_cells(row: dict) -> str:
+    """A row's p95 jerk, max jerk and p95 acceleration as markdown cells (COMFORT_COLUMNS; "-": unknown)."""
+    values = (row.get(key) for key in ("jerk_p95_m_s3", "jerk_max_m_s3", "accel_p95_m_s2"))
+    return "".join(f"| {'-' if value is None else f'{value:.2f}'} " for value in values)
+
+
+def comfort_line(summary: dict) -> str:
+    """The summary's comfort means as a markdown sentence ("" when no episode has them)."""
+    if not all(name in summary for name, _ in COMFORT_MEANS):
+        return ""
+    return (f"Comfort (`mjdrive.comfort`, means over the episodes): p95 jerk {summary['avg_jerk_p95_m_s3']:.2f} "
+            f"m/s^3, max jerk {summary['avg_jerk_max_m_s3']:.2f} m/s^3, p95 acceleration "
+            f"{summary['avg_accel_p95_m_s2']:.2f} m/s^2.")
+
+
 def document(command: str, task: str, task_kwargs: dict, policy: str, rows: list[dict],
              **header: Any) -> dict[str, Any]:
     """The whole summary: schema, command, task, its kwargs, policy, first seed, episodes, `header` extras,
