@@ -111,16 +111,33 @@ class CubeListEncoder:
 ENTITY_TEXTS_FIELD = 13  # foxglove.SceneEntity.texts
 
 
-def text_fields(positions: np.ndarray, texts: list[bytes], rgba: np.ndarray, font_size: float = 12.0) -> bytes:
-    """The repeated `texts` fields of a foxglove.SceneEntity: billboard, scale-invariant labels (UTF-8 `texts`)
-    at `positions` (N,3) [m] with colours (N,4) [0-1], `font_size` [px]."""
+def text_field(text: bytes, rgba: tuple[float, ...], font_size: float = 12.0) -> tuple[bytes, int]:
+    """One `texts` field of a foxglove.SceneEntity: a billboard, scale-invariant label (UTF-8 `text`, colour
+    `rgba` [0-1], `font_size` [px]) at (0, 0, 0), and the byte offset of its position's x (`place` moves it)."""
+    position = struct.pack("<BdBdBd", 0x09, 0.0, 0x11, 0.0, 0x19, 0.0)  # x, y, z: fields 1-3, fixed64
+    head = tag(1, _LEN) + varint(len(position))
+    pose = head + position + length_delimited(2, tag(4, _DOUBLE) + struct.pack("<d", 1.0))  # orientation w = 1
     style = tag(2, 0) + varint(1) + tag(3, _DOUBLE) + struct.pack("<d", font_size) + tag(4, 0) + varint(1)
+    r, g, b, a = rgba
+    color = length_delimited(5, struct.pack("<BdBdBdBd", 0x09, r, 0x11, g, 0x19, b, 0x21, a))
+    body = length_delimited(1, pose) + style + color + length_delimited(6, text)
+    outer = tag(ENTITY_TEXTS_FIELD, _LEN) + varint(len(body))
+    return outer + body, len(outer) + len(tag(1, _LEN) + varint(len(pose))) + len(head) + 1
+
+
+def place(buffer: bytearray, at: int, x: float, y: float, z: float) -> None:
+    """Write a position (x, y, z) [m] into a `text_field` copied into `buffer` with its x at byte `at`."""
+    struct.pack_into("<dBdBd", buffer, at, x, 0x11, y, 0x19, z)
+
+
+def text_fields(positions: np.ndarray, texts: list[bytes], rgba: np.ndarray, font_size: float = 12.0) -> bytes:
+    """The repeated `texts` fields (`text_field`) of labels `texts` at `positions` (N,3) [m], colours (N,4)."""
     out = bytearray()
-    for (x, y, z), text, (r, g, b, a) in zip(positions.tolist(), texts, rgba.tolist(), strict=True):
-        pose = length_delimited(1, length_delimited(1, struct.pack("<BdBdBd", 0x09, x, 0x11, y, 0x19, z))
-                                + length_delimited(2, tag(4, _DOUBLE) + struct.pack("<d", 1.0)))
-        color = length_delimited(5, struct.pack("<BdBdBdBd", 0x09, r, 0x11, g, 0x19, b, 0x21, a))
-        out += length_delimited(ENTITY_TEXTS_FIELD, pose + style + color + length_delimited(6, text))
+    for (x, y, z), text, color in zip(positions.tolist(), texts, rgba.tolist(), strict=True):
+        field, at = text_field(text, tuple(color), font_size)
+        start = len(out)
+        out += field
+        place(out, start + at, x, y, z)
     return bytes(out)
 
 

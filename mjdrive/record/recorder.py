@@ -139,9 +139,9 @@ def package_versions() -> dict[str, str]:
     """Versions of the packages that decide an episode's numbers (looked up once per process)."""
     from importlib import metadata
 
-    import mjdrive
+    from mjdrive.version import __version__
 
-    versions = {"mjdrive": mjdrive.__version__, "mujoco": mujoco.__version__, "numpy": np.__version__,
+    versions = {"mjdrive": __version__, "mujoco": mujoco.__version__, "numpy": np.__version__,
                 "python": platform.python_version()}
     for dist in ("dm-control", "foxglove-sdk"):
         try:
@@ -548,7 +548,8 @@ class EpisodeRecorder:
         self._prev_accel, self._prev_time = (accel_long, accel_lat), t
         if action is not None:
             self._speed_sum += speed
-        task.sample_comfort(data, self._comfort)  # the task's samples (those of its info's comfort metrics)
+        if not task.info.get("physics_error"):  # the task's samples (those of its info's comfort metrics)
+            task.sample_comfort(data, self._comfort)
         lane_offset = getattr(task, "lane_offset", None)
         heading_error = getattr(task, "heading_error", None)
         if lane_offset is None or heading_error is None:  # a task without its own lane frame: ask the map

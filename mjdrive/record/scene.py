@@ -183,38 +183,47 @@ def scenario_entity(route_lane, tactical, stamp: fm.Timestamp | None = None) -> 
 class IntentionLabels:
     """Text labels of road users' intentions, e.g. "LC keep | X left | M yield | R after" (pedestrians, whose
     intentions are -1, get none), coloured by the value in the active scenario (INTENTION_RGBA; white outside
-    the scenarios with intentions). Label bytes are cached per intention row."""
+    the scenarios with intentions). Each (intentions, colour) label is encoded once (`proto.text_field`)."""
 
     def __init__(self):
-        self._text: dict[tuple[int, ...], bytes] = {}
+        self._fields: dict[tuple[tuple[int, ...], int], tuple[bytes, int]] = {}
 
-    def label(self, row: tuple[int, ...]) -> bytes:
-        text = self._text.get(row)
-        if text is None:
-            parts = []
-            for scenario, value in zip(intentions.SCENARIOS, row, strict=True):
-                prefix, names = INTENTION_NAMES[scenario]
-                parts.append(f"{prefix} {names[value] if 0 <= value < len(names) else value}")
-            text = self._text[row] = " | ".join(parts).encode()
-        return text
+    @staticmethod
+    def text(row: tuple[int, ...]) -> str:
+        """The label of one road user's intentions (columns `intentions.SCENARIOS`)."""
+        parts = []
+        for scenario, value in zip(intentions.SCENARIOS, row, strict=True):
+            prefix, names = INTENTION_NAMES[scenario]
+            parts.append(f"{prefix} {names[value] if 0 <= value < len(names) else value}")
+        return " | ".join(parts)
 
     def __call__(self, users, scenario: str | None) -> bytes:
-        """The `texts` fields (`proto.text_fields`) for `users` (a RoadUsers with intentions) when the ego's
-        active scenario is `scenario`."""
+        """The `texts` fields of a SceneEntity for `users` (a RoadUsers with intentions) when the ego's active
+        scenario is `scenario`."""
         from mjdrive.record import proto
 
-        rows = np.asarray(users.intentions)
-        labelled = np.flatnonzero((rows >= 0).all(axis=1)) if rows.size else np.zeros(0, int)
+        rows = np.asarray(users.intentions).reshape(len(users.kinds), -1)
+        labelled = np.flatnonzero((rows >= 0).all(axis=1))
         if not len(labelled):
             return b""
         column = intentions.SCENARIOS.index(scenario) if scenario in intentions.SCENARIOS else None
-        rgba = np.empty((len(labelled), 4))
-        for k, i in enumerate(labelled):
-            value = -1 if column is None else int(rows[i, column])
-            rgba[k] = INTENTION_RGBA[value] if 0 <= value < len(INTENTION_RGBA) else NO_INTENTION_RGBA
-        positions = np.column_stack([users.poses[labelled, :2], 2.0 * users.half_sizes[labelled, 2] + LABEL_Z])
-        texts = [self.label(tuple(int(v) for v in rows[i])) for i in labelled]
-        return proto.text_fields(positions, texts, rgba)
+        shade = rows[labelled, column] if column is not None else np.full(len(labelled), -1)  # colour index
+        z = 2.0 * users.half_sizes[labelled, 2] + LABEL_Z
+        out = bytearray()
+        for row, (x, y), height, c in zip(rows[labelled].tolist(), users.poses[labelled, :2].tolist(), z.tolist(),
+                                          shade.tolist(), strict=True):
+            key = (tuple(row), c)
+            cached = self._fields.get(key)
+            if cached is None:
+                if len(self._fields) > 4096:
+                    self._fields.clear()
+                rgba = INTENTION_RGBA[c] if 0 <= c < len(INTENTION_RGBA) else NO_INTENTION_RGBA
+                cached = self._fields[key] = proto.text_field(self.text(key[0]).encode(), rgba)
+            field, at = cached
+            start = len(out)
+            out += field
+            proto.place(out, start + at, x, y, height)
+        return bytes(out)
 
 
 def ego_entity(length: float, width: float, height: float, stamp: fm.Timestamp | None = None) -> fm.SceneEntity:
