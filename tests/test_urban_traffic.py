@@ -198,11 +198,21 @@ def test_nobody_vanishes_at_the_end_of_an_on_ramp():
 
 
 def test_concatenated_map_two_minutes_without_overlap_or_deadlock():
-    """No overlap, and nobody stands for a minute unless queued (a minor-road car at the crossroad may wait
-    half a minute for a gap: results/urban/traffic.md reports the longest waits over 10-minute runs)."""
+    """No overlap, and nobody stands for half a minute unless queued (results/urban/traffic.md reports the
+    longest waits over 10-minute runs)."""
     traffic = urban_traffic(concatenated())
     traffic.reset(np.random.default_rng(0))
     overlaps, worst, _ = free_run(traffic, 120.0)
-    assert overlaps == 0 and worst < 60.0
+    assert overlaps == 0 and worst < 30.0
     assert traffic.stats["spawned"] > 20
     assert set(np.unique(traffic.intention[traffic.active], axis=0).ravel()) <= {0, 1, 2}
+
+
+def test_a_waiting_minor_road_car_gets_its_turn_within_half_a_minute():
+    """A minor-road car turning across the crossroad's busy flows waits for a gap; past its patience it
+    claims the zone and priority cars that can still stop let it go (without the claim this seed kept a
+    left-turner waiting 38 s at 190 s)."""
+    traffic = urban_traffic(concatenated(order=("crossroad",)))
+    traffic.reset(np.random.default_rng(0))
+    overlaps, worst, _ = free_run(traffic, 240.0)
+    assert overlaps == 0 and worst < 30.0

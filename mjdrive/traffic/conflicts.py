@@ -38,6 +38,7 @@ CHANGING_RADIUS = 8.0  # [m] a vehicle changing lane this close to a zone's poin
 HELD_SPEED = 1.0  # [m/s] a vehicle slower than this before its give-way line is waiting
 AT_LINE = 3.0  # [m] a waiting vehicle this close to its give-way line is first in line
 TURN_WAIT = 3.0  # [s] a priority vehicle first in line this long gets its turn
+CLAIM_DECEL = 4.0  # [m/s^2] a priority vehicle stops for a vehicle past its patience if it can at this braking
 
 
 @dataclass(frozen=True)
@@ -193,7 +194,21 @@ def conflict_columns(t: Traffic, ctx: dict, f: dict) -> tuple[np.ndarray, np.nda
     # let the follower clear the zone before the priority agent arrives).
     waited = np.append(t.stopped_time, 0.0)[np.minimum(me, t.nv)]  # (P,) [s] (the ego: never)
     critical = cfg.critical_gap_crossing * np.maximum(0.0, 1.0 - waited / cfg.impatience)
-    soon = (others & ~tr(held) & (tr(ttz) < (t_clear + critical)[:, None])).any(axis=1)  # (P,)
+    # Past its patience a vehicle standing at its give-way line claims the zone: priority vehicles that can
+    # still stop before their own line (braking at most CLAIM_DECEL) or stand before it stop there for it,
+    # and it no longer waits for them; never the ego, whose driver the traffic cannot count on.
+    to_own_line = table.other_stop[None] - front_o  # (A, R) [m] (-inf off the other lane)
+    to_own_line = np.where(np.isfinite(to_own_line), to_own_line, -np.inf)
+    can_stop = _can_stop(v[:, None], to_own_line)  # (A, R)
+    can_stop[t.nv] = False
+    patient = np.append(t.stopped_time, 0.0)[:, None] >= cfg.impatience  # (A, 1) (the ego: never)
+    claiming = before_line & at_line & patient & table.yields[table.partner][None]  # (A, R) on the other lane
+    me_stop = table.stop[pr] - front_me  # (P,) [m] to the follower's own give-way line
+    forcing = ((waited >= cfg.impatience) & (v_me < HELD_SPEED) & (me_stop < AT_LINE) & (me_stop >= -COMMITTED)
+               & table.yields[pr])  # (P,) the follower claims this zone (as `claiming` sees it)
+    stoppable = forcing[:, None] & tr(can_stop)  # (P, A)
+    soon = (others & ~tr(held) & ~stoppable & (tr(ttz) < (t_clear + critical)[:, None])).any(axis=1)  # (P,)
+    claimed = (others & tr(claiming)).any(axis=1) & ~table.yields[pr] & ~table.tie[pr] & _can_stop(v_me, me_stop)
     # Occupied: someone from the other lane is committed to the zone (past its give-way line) or in it. A
     # vehicle not yet committed waits at its give-way line for either; a committed one stops at the zone's
     # edge only for a vehicle physically in it (committed vehicles never wait for each other's promises,
@@ -214,8 +229,11 @@ def conflict_columns(t: Traffic, ctx: dict, f: dict) -> tuple[np.ndarray, np.nda
     t_line_me = np.maximum(table.stop[pr] - front_me, 0.0) / pace[me]  # (P,) [s]
     t_line_o = np.maximum(table.other_stop[None] - front_o, 0.0) / pace[:, None]  # (A, R) along the other
     waiting_o = np.isfinite(front_o) & ~inside & (front_o <= table.o_in[None]) & ~np.isfinite(offset[:, table.lane])
-    earlier = (tr(t_line_o) < t_line_me[:, None]) | (
-        (tr(t_line_o) == t_line_me[:, None]) & (np.arange(len(s))[None] < me[:, None]))
+    # ... and of those at their lines, whoever has waited longer, then the lower row.
+    waited_all = np.append(t.stopped_time, 0.0)  # (A,) [s]
+    longer = (waited_all[None] > waited[:, None]) | (
+        (waited_all[None] == waited[:, None]) & (np.arange(len(s))[None] < me[:, None]))
+    earlier = (tr(t_line_o) < t_line_me[:, None]) | ((tr(t_line_o) == t_line_me[:, None]) & longer)
     first = (others & tr(waiting_o) & earlier).any(axis=1)  # another agent goes first
     wait_timed = timed & ((table.yields[pr] & soon) | (table.tie[pr] & first))
 
@@ -246,7 +264,7 @@ def conflict_columns(t: Traffic, ctx: dict, f: dict) -> tuple[np.ndarray, np.nda
     stop = table.stop[pr] - front_me  # (P,) [m] to the give-way line
     holding = stop > -COMMITTED  # not yet committed
     edge = table.s_in[pr] - EDGE_MARGIN - front_me  # (P,) [m] to the zone's edge
-    stops = np.minimum(np.where((wait_timed | wait_merge | (timed & promised)) & holding, stop, np.inf),
+    stops = np.minimum(np.where((wait_timed | wait_merge | (timed & (promised | claimed))) & holding, stop, np.inf),
                        np.where(timed & occupied & (edge > -COMMITTED), edge, np.inf))
     gap = np.full((n_f, 2 * n_r), np.inf)
     lead = np.zeros((n_f, 2 * n_r))
@@ -255,6 +273,13 @@ def conflict_columns(t: Traffic, ctx: dict, f: dict) -> tuple[np.ndarray, np.nda
     np.minimum.at(to_line, pf, np.where(gives_way & holding, stop, np.inf))
     s0 = np.concatenate([np.full(n_r, cfg.stop_gap), np.full(n_r, cfg.min_gap)])
     return gap, lead, s0, to_line
+
+
+def _can_stop(v: np.ndarray, to_line: np.ndarray) -> np.ndarray:
+    """Whether a vehicle at speed v [m/s], to_line [m] before its give-way line, can stop there braking at
+    most CLAIM_DECEL, or stands before it already."""
+    return (v * v < 2.0 * CLAIM_DECEL * np.maximum(to_line - STOP_MARGIN, -1e9)) | (
+        (v < HELD_SPEED) & (to_line > -COMMITTED))
 
 
 def courteous_agents(t: Traffic, ctx: dict) -> np.ndarray:

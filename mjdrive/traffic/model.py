@@ -62,6 +62,7 @@ from mjdrive.traffic.params import (
 from mjdrive.traffic.pedestrians import commit_pedestrians, pedestrian_poses, pedestrian_starts
 from mjdrive.traffic.spawning import SpawnPoints, activate, spawn
 
+WAITING_SPEED = 1.0  # [m/s] a vehicle slower than this is waiting (urban rules: its patience runs down)
 
 @dataclass
 class _Plan:
@@ -378,8 +379,9 @@ class Traffic:
         """New accelerations, lane changes, spawns and pedestrian starts; then the plan of poses."""
         self._obstacle_cache = None
         if self.urban:
-            self.stopped_time = np.where(self.active & (self.v < 0.1), self.stopped_time + self.config.decision_period,
-                                         0.0)
+            # waiting time: creeping up to a give-way line (slower than WAITING_SPEED) does not reset it
+            self.stopped_time = np.where(self.active & (self.v < WAITING_SPEED),
+                                         self.stopped_time + self.config.decision_period, 0.0)
         self._advance_lanes()
         if spawn(self):
             self._refresh_vehicle_poses()
