@@ -107,7 +107,8 @@ def _convert(value: Any, tp: Any, spec: Spec) -> Any:
                 return _convert(value, option, spec)
             except _Invalid as error:
                 reasons.append(str(error))
-        bounds = [r for r in reasons if "<" in r or ">" in r]  # the value has a right type but not a right size
+        # the value has a right type but not a right size, or a list/mapping of the right type a bad element
+        bounds = [r for r in reasons if "<" in r or ">" in r or not r.startswith("must be ")]
         if bounds:
             raise _Invalid(bounds[0])
         kinds = [r.removeprefix("must be ") for r in reasons] + (["None"] if type(None) in args else [])
@@ -160,7 +161,7 @@ def _convert(value: Any, tp: Any, spec: Spec) -> Any:
         if spec.choices is not None:
             bad = [item for item in out if item not in spec.choices]
             if bad:
-                raise _Invalid("elements must be among " + ", ".join(repr(c) for c in spec.choices))
+                raise _Invalid(f"element {_show(bad[0])} is not one of " + ", ".join(repr(c) for c in spec.choices))
         if len(set(out)) != len(out) and variadic:
             raise _Invalid("must not repeat an element")
         return out

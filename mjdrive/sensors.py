@@ -193,7 +193,11 @@ class CameraRenderer:
     MARKER_RGBA = np.array([0.1, 0.9, 0.2, 1.0], np.float32)
     MARKER_SIZE = np.array([0.35, 0.35, 0.02])  # [m] half sizes of the flat green rectangles
 
-    def __init__(self, model: mujoco.MjModel, camera: str, height: int, width: int, antialias: bool = False):
+    def __init__(self, model: mujoco.MjModel, camera: str, height: int, width: int, antialias: bool = False,
+                 flat_planes: bool = False):
+        """`flat_planes`: draw each infinite plane (the ground) as 4 quads instead of MuJoCo's 200x200 grid,
+        which exists for per-vertex lighting and costs most of a small software render; for unlit renders
+        (segmentation and depth), where the grid changes nothing but float rounding."""
         cameras = [model.camera(i).name for i in range(model.ncam)]
         if camera not in cameras:
             raise ValueError(f"no camera {camera!r} in the model; cameras: {', '.join(cameras)}")
@@ -206,6 +210,12 @@ class CameraRenderer:
         samples = model.vis.quality.offsamples
         # Multisampling triples the cost of a small software render: off for observations, on for videos.
         model.vis.quality.offsamples = samples if antialias else 0
+        planes = np.flatnonzero((model.geom_type == mujoco.mjtGeom.mjGEOM_PLANE)
+                                & (model.geom_size[:, :2] <= 0).any(axis=1)) if flat_planes else []
+        plane_sizes = model.geom_size[planes].copy()
+        # The context builds each plane's display list from its size: a finite plane larger than the far clip
+        # plane (scenes keep infinite planes centred on the camera), one grid cell per half size.
+        model.geom_size[planes] = 1.1 * model.vis.map.zfar * model.stat.extent  # [m]
         try:
             gl.make_current()
             context = mujoco.MjrContext(model, FONT_SCALE.value)
@@ -218,6 +228,7 @@ class CameraRenderer:
             ) from error
         finally:
             model.vis.quality.offsamples = samples
+            model.geom_size[planes] = plane_sizes
         if not _OPEN_RENDERERS:  # registered after the GL backend's own exit handler, so it runs first
             atexit.unregister(_close_renderers)
             atexit.register(_close_renderers)
@@ -314,17 +325,20 @@ def geom_classes(model: mujoco.MjModel, prefix: str = "ego/") -> np.ndarray:
 
 
 class DepthSegmentationCamera(CameraRenderer):
-    """A camera that also reads its depth buffer as metres and renders a segmentation image (one class per
-    pixel, SEGMENT_CLASSES), from one scene update per step. Sky and anything beyond the far clip plane read
-    as `far` [m]."""
+    """A camera that reads depth [m] and a segmentation image (one SEGMENT_CLASSES index per pixel) from one
+    render: MuJoCo's segmentation mode (flat colours, no lights or textures) writes the same depth buffer as
+    a shaded render, so both come from a single `mjr_render` and a single `mjr_readPixels`; the ground is
+    drawn as a few quads (`flat_planes`). Sky and anything beyond the far clip plane read as `far` [m] and
+    class background."""
 
     def __init__(self, model: mujoco.MjModel, camera: str, height: int, width: int):
-        super().__init__(model, camera, height, width)
+        super().__init__(model, camera, height, width, flat_planes=True)
         extent = model.stat.extent
         self.near, self.far = model.vis.map.znear * extent, model.vis.map.zfar * extent  # [m]
-        self._depth = np.empty((height, width), np.float32)
+        self._depth = np.empty((height, width), np.float32)  # GL's [0, 1], bottom row first
+        self._ids = np.empty((height, width), np.uint16)  # scene geom index + 1 (0: nothing drawn)
         self.classes = geom_classes(model)
-        self.depth_image = np.empty((height, width), np.float32)
+        self.depth_image = np.empty((height, width), np.float32)  # [m]
         self.segmentation_image = np.empty((height, width), np.uint8)
 
     def render_sensors(self, data: mujoco.MjData, depth: bool = True, segmentation: bool = True) -> None:
@@ -332,35 +346,41 @@ class DepthSegmentationCamera(CameraRenderer):
         if self.closed:
             raise RuntimeError("this DepthSegmentationCamera is closed; make a new one")
         gl, context = _CONTEXTS[id(self)]
+        self._update_scene(data)  # twice, as CameraRenderer.render: the image depends on the state alone
         self._update_scene(data)
-        self._update_scene(data)
-        gl.make_current()
-        if depth:
+        flags = self.scene.flags
+        flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = True
+        try:
+            gl.make_current()
             mujoco.mjr_render(self.rect, self.scene, context)
-            mujoco.mjr_readPixels(None, self._depth, self.rect, context)
-            # GL's depth in [0, 1] is hyperbolic in the distance: back to metres along the view axis
-            linear = self.near / (1.0 - self._depth * (1.0 - self.near / self.far))
-            np.copyto(self.depth_image, np.minimum(linear, self.far)[::-1])
+            mujoco.mjr_readPixels(self._pixels if segmentation else None, self._depth if depth else None,
+                                  self.rect, context)
+        finally:  # `render` stays a shaded RGB render
+            flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = False
+        if depth:
+            # GL's depth in [0, 1] is hyperbolic in the distance along the view axis: back to metres, in float32
+            z = self._depth
+            np.multiply(z, np.float32(self.near / self.far - 1.0), out=z)
+            z += np.float32(1.0)
+            np.divide(np.float32(self.near), z, out=z)
+            np.minimum(z[::-1], np.float32(self.far), out=self.depth_image)
         if segmentation:
-            flags = self.scene.flags
-            flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = True
-            try:
-                mujoco.mjr_render(self.rect, self.scene, context)
-                mujoco.mjr_readPixels(self._pixels, None, self.rect, context)
-            finally:
-                flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = False
-            segid = (self._pixels[..., 0].astype(np.int32) + (self._pixels[..., 1].astype(np.int32) << 8)
-                     + (self._pixels[..., 2].astype(np.int32) << 16))[::-1]  # 0: nothing drawn, else segid + 1
-            n = self.scene.ngeom
-            geoms = self.scene.geoms
-            lookup = np.zeros(n + 1, np.uint8)  # scene geom (segid + 1) -> class
-            if n:
-                segids = np.array([geoms[i].segid for i in range(n)])
-                objids = np.array([geoms[i].objid for i in range(n)])
-                objtypes = np.array([geoms[i].objtype for i in range(n)])
-                is_geom = objtypes == int(mujoco.mjtObj.mjOBJ_GEOM)
-                lookup[segids[is_geom] + 1] = self.classes[objids[is_geom]]
-            np.copyto(self.segmentation_image, lookup[np.clip(segid, 0, n)])
+            # IDCOLOR writes scene geom index + 1 as 24-bit RGB; a scene holds at most MAX_GEOMS < 2**16 geoms
+            ids = self._ids
+            np.left_shift(self._pixels[..., 1], 8, out=ids, dtype=np.uint16)
+            ids |= self._pixels[..., 0]
+            np.take(self._scene_classes(), ids[::-1], out=self.segmentation_image, mode="clip")
+
+    def _scene_classes(self) -> np.ndarray:
+        """(ngeom + 1,) class of each scene geom index + 1 (0: background); decorations that are not model
+        geoms are background."""
+        geoms = self.scene.geoms[: self.scene.ngeom]
+        lookup = np.zeros(len(geoms) + 1, np.uint8)
+        geom_type = int(mujoco.mjtObj.mjOBJ_GEOM)
+        for geom in geoms:
+            if geom.objtype == geom_type and geom.segid >= 0:
+                lookup[geom.segid + 1] = self.classes[geom.objid]
+        return lookup
 
 
 class RangeRing:
@@ -393,3 +413,61 @@ class RangeRing:
         hit = (self._geomid >= 0) & (self._dist >= 0) & (self._dist <= self.max_range)
         np.copyto(self.ranges, np.where(hit, self._dist, self.max_range))
         return self.ranges
+
+
+SENSORS = ("depth", "segmentation", "range")  # extra observations every task adds on request (`sensors=`)
+SENSOR_CAMERA = "ego/front"  # the depth and segmentation images' camera
+
+
+class ExtraSensors:
+    """The extra observations of a task's `sensors` keyword: `depth` (size, size) float32 [m] and
+    `segmentation` (size, size) uint8 (SEGMENT_CLASSES indices) from one render of the front camera, and
+    `range` (rays,) float32 [m] from a RangeRing. They read the state and never change it."""
+
+    def __init__(self, names: tuple[str, ...], size: int = 64, rays: int = 36, max_range: float = 50.0):
+        unknown = [name for name in names if name not in SENSORS]
+        if unknown:
+            raise ValueError(f"unknown sensor {unknown[0]!r}; sensors: {', '.join(SENSORS)}")
+        self.names = tuple(name for name in SENSORS if name in names)  # in SENSORS order
+        self.size, self.rays, self.max_range = size, rays, float(max_range)  # [px], rays, [m]
+        self._model: mujoco.MjModel | None = None
+        self.camera: DepthSegmentationCamera | None = None
+        self.ring: RangeRing | None = None
+
+    def specs(self, model: mujoco.MjModel) -> dict[str, Any]:
+        """dm_env BoundedArray specs of the observations, by name."""
+        from dm_env import specs
+
+        far = float(model.vis.map.zfar * model.stat.extent)  # [m]
+        shape = (self.size, self.size)
+        out = {"depth": specs.BoundedArray(shape, np.float32, 0.0, far, "depth"),
+               "segmentation": specs.BoundedArray(shape, np.uint8, 0, len(SEGMENT_CLASSES) - 1, "segmentation"),
+               "range": specs.BoundedArray((self.rays,), np.float32, 0.0, self.max_range, "range")}
+        return {name: out[name] for name in self.names}
+
+    def __call__(self, model: mujoco.MjModel, data: mujoco.MjData) -> dict[str, np.ndarray]:
+        """The observations of the state in `data` (new arrays)."""
+        if model is not self._model:  # first call, or a task rebuilt its model
+            self.close()
+            self._model = model
+            if "depth" in self.names or "segmentation" in self.names:
+                self.camera = DepthSegmentationCamera(model, SENSOR_CAMERA, self.size, self.size)
+            if "range" in self.names:
+                self.ring = RangeRing(model, self.rays, self.max_range)
+        out = {}
+        if self.camera is not None:
+            depth, segmentation = "depth" in self.names, "segmentation" in self.names
+            self.camera.render_sensors(data, depth, segmentation)
+            if depth:
+                out["depth"] = self.camera.depth_image.copy()
+            if segmentation:
+                out["segmentation"] = self.camera.segmentation_image.copy()
+        if self.ring is not None:
+            out["range"] = self.ring(data).copy()
+        return out
+
+    def close(self) -> None:
+        """Free the camera's GL context (idempotent); a later call makes a new one."""
+        if self.camera is not None:
+            self.camera.close()
+        self.camera = self.ring = self._model = None

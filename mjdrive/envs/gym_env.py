@@ -61,70 +61,13 @@ def spec_to_space(spec: specs.Array, reach: float = np.inf) -> gym.spaces.Box:
     return gym.spaces.Box(bounds[0].astype(spec.dtype), bounds[1].astype(spec.dtype), spec.shape, spec.dtype)
 
 
-SENSORS = ("depth", "segmentation", "range")  # extra observations every task can add (`sensors=`)
-
-
-class ExtraSensors:
-    """Depth and segmentation images from the front camera and a range ring around the ego, for any task
-    (`DrivingGymEnv(sensors=...)`): observation keys `depth` (size, size) float32 [m], `segmentation`
-    (size, size) uint8 (`mjdrive.sensors.SEGMENT_CLASSES` indices), `range` (rays,) float32 [m]."""
-
-    def __init__(self, names: tuple[str, ...], size: int = 64, rays: int = 36, max_range: float = 50.0):
-        unknown = [name for name in names if name not in SENSORS]
-        if unknown:
-            raise ValueError(f"unknown sensor {unknown[0]!r}; sensors: {', '.join(SENSORS)}")
-        if not 8 <= size <= 512 or rays < 1 or not max_range > 0:
-            raise ValueError(f"sensor_size must be in 8..512, range_rays >= 1 and range_max > 0; got {size}, "
-                             f"{rays}, {max_range}")
-        self.names, self.size, self.rays, self.max_range = tuple(dict.fromkeys(names)), size, rays, max_range
-        self._model = None
-        self.camera = None
-        self.ring = None
-
-    def spaces(self, model) -> dict[str, gym.spaces.Box]:
-        from mjdrive.sensors import SEGMENT_CLASSES
-
-        far = float(model.vis.map.zfar * model.stat.extent)  # [m]
-        shape = (self.size, self.size)
-        out = {"depth": gym.spaces.Box(0.0, far, shape, np.float32),
-               "segmentation": gym.spaces.Box(0, len(SEGMENT_CLASSES) - 1, shape, np.uint8),
-               "range": gym.spaces.Box(0.0, self.max_range, (self.rays,), np.float32)}
-        return {name: out[name] for name in self.names}
-
-    def __call__(self, physics) -> dict[str, np.ndarray]:
-        from mjdrive.sensors import DepthSegmentationCamera, RangeRing
-
-        model, data = physics.model.ptr, physics.data.ptr
-        if model is not self._model:  # a task may rebuild its model on reset
-            self.close()
-            self._model = model
-            if "depth" in self.names or "segmentation" in self.names:
-                self.camera = DepthSegmentationCamera(model, "ego/front", self.size, self.size)
-            if "range" in self.names:
-                self.ring = RangeRing(model, self.rays, self.max_range)
-        out = {}
-        if self.camera is not None:
-            self.camera.render_sensors(data, "depth" in self.names, "segmentation" in self.names)
-            if "depth" in self.names:
-                out["depth"] = self.camera.depth_image.copy()
-            if "segmentation" in self.names:
-                out["segmentation"] = self.camera.segmentation_image.copy()
-        if self.ring is not None:
-            out["range"] = self.ring(data).copy()
-        return out
-
-    def close(self) -> None:
-        if self.camera is not None:
-            self.camera.close()
-        self.camera = self.ring = self._model = None
-
-
 class DrivingGymEnv(gym.Env):
     """A dm_control task as a gymnasium Env.
 
     `terminated` is True when the task ended the episode (collision, lane invasion, arrival, physics
     error); `truncated` when the time limit ran out. `info` carries the task's metrics
     (route_completion, success, collision, ...). `reset(seed=s)` reseeds the task: same seed, same episode.
+    Extra sensors are task keywords (`task_kwargs={"sensors": ["depth", "range"]}`).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
@@ -138,10 +81,6 @@ class DrivingGymEnv(gym.Env):
         render_mode: str | None = None,
         render_camera: str = "ego/chase",
         render_size: tuple[int, int] = (360, 640),  # (height, width) [px]
-        sensors: tuple[str, ...] | list[str] | str = (),
-        sensor_size: int = 64,  # [px] side of the depth and segmentation images
-        range_rays: int = 36,
-        range_max: float = 50.0,  # [m]
     ):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
@@ -153,12 +92,7 @@ class DrivingGymEnv(gym.Env):
         x0, y0, x1, y1 = self.task.road_map.bounds()
         reach = float(np.hypot(x1 - x0, y1 - y0) + MAX_SPEED * self.max_episode_steps
                       * self.dm_env.control_timestep())  # [m] no distance between the ego and the map exceeds it
-        if isinstance(sensors, str):  # "depth,range"
-            sensors = tuple(name for name in sensors.split(",") if name)
-        self.sensors = ExtraSensors(tuple(sensors), sensor_size, range_rays, range_max) if sensors else None
         spaces = {name: spec_to_space(spec, reach) for name, spec in self.dm_env.observation_spec().items()}
-        if self.sensors is not None:
-            spaces.update(self.sensors.spaces(self.dm_env.physics.model.ptr))
         self.observation_space = gym.spaces.Dict(spaces)
         action_spec = self.dm_env.action_spec()
         self.action_space = gym.spaces.Box(
@@ -180,13 +114,7 @@ class DrivingGymEnv(gym.Env):
         if seed is not None:
             self.task.seed(seed)
         timestep = self.dm_env.reset()
-        return self._observation(timestep), dict(self.task.info)
-
-    def _observation(self, timestep) -> dict[str, np.ndarray]:
-        observation = dict(timestep.observation)
-        if self.sensors is not None:
-            observation.update(self.sensors(self.dm_env.physics))
-        return observation
+        return dict(timestep.observation), dict(self.task.info)
 
     def step(self, action):
         action = np.asarray(action, dtype=np.float64)
@@ -197,7 +125,7 @@ class DrivingGymEnv(gym.Env):
         terminated = timestep.step_type == dm_env.StepType.LAST and timestep.discount == 0.0
         truncated = timestep.step_type == dm_env.StepType.LAST and not terminated
         info["time_limit"] = truncated
-        return self._observation(timestep), float(timestep.reward or 0.0), terminated, truncated, info
+        return dict(timestep.observation), float(timestep.reward or 0.0), terminated, truncated, info
 
     def render(self):
         if self.render_mode != "rgb_array":
@@ -206,19 +134,13 @@ class DrivingGymEnv(gym.Env):
         return self.task.render_camera(self.dm_env.physics, self.render_camera, height, width).copy()
 
     def close(self) -> None:
-        if self.sensors is not None:
-            self.sensors.close()
-        for camera in self.task.cameras.values():
-            camera.close()
-        self.task.cameras.clear()
+        self.task.close_cameras()
 
 
 def make_env(domain: str, task: str, actions: str = "continuous", render_mode: str | None = None,
-             environment_kwargs: dict[str, Any] | None = None, sensors: tuple[str, ...] | list[str] | str = (),
-             sensor_size: int = 64, range_rays: int = 36, range_max: float = 50.0, **task_kwargs) -> gym.Env:
-    """Entry point of the gymnasium ids: a DrivingGymEnv with the chosen action set and extra `sensors`
-    (`SENSORS`: depth and segmentation images of `sensor_size` px, a range ring of `range_rays` rays up to
-    `range_max` m)."""
-    env = DrivingGymEnv(domain, task, task_kwargs, environment_kwargs, render_mode=render_mode, sensors=sensors,
-                        sensor_size=sensor_size, range_rays=range_rays, range_max=range_max)
+             environment_kwargs: dict[str, Any] | None = None, **task_kwargs) -> gym.Env:
+    """Entry point of the gymnasium ids: a DrivingGymEnv with the chosen action set; every other keyword is
+    the task's (`mjdrive list --kwargs`), e.g. the extra sensors `sensors=["depth", "segmentation", "range"]`,
+    `sensor_size`, `range_rays`, `range_max`."""
+    env = DrivingGymEnv(domain, task, task_kwargs, environment_kwargs, render_mode=render_mode)
     return wrap_actions(env, actions)

@@ -19,7 +19,7 @@ from dm_env import specs
 from mjdrive.comfort import ComfortMeter, ComfortMetrics
 from mjdrive.config import Config, ConfigError, param
 from mjdrive.roads import RoadMap
-from mjdrive.sensors import CameraRenderer, CollisionSensor, LaneInvasionSensor, footprint
+from mjdrive.sensors import SENSORS, CameraRenderer, CollisionSensor, ExtraSensors, LaneInvasionSensor, footprint
 from mjdrive.vehicle import VEHICLES, Vehicle
 from mjdrive.world import PHYSICS_TIMESTEP
 
@@ -45,6 +45,25 @@ class DrivingConfig(Config):
     time_limit: float = param(60.0, "episode length, then truncation", "s", gt=0.0, le=3600.0)
     physics_dt: float = param(PHYSICS_TIMESTEP, "MuJoCo time step (the control period must be a multiple)", "s",
                               ge=0.0005, le=0.01)
+    sensors: tuple[str, ...] | None = param(
+        None, "extra observations: front-camera depth [m] and segmentation images, a range ring [m] (a list or "
+        "comma-separated names); None: none", choices=SENSORS)
+    sensor_size: int = param(64, "side of the square depth and segmentation images", "px", ge=8, le=512)
+    range_rays: int = param(36, "rays of the range ring, evenly spaced, the first straight ahead", ge=1, le=1024)
+    range_max: float = param(50.0, "reach of the range ring (its reading where no ray hits)", "m", gt=0.0, le=500.0)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.sensors, str):  # "depth,range" as typed on a command line
+            object.__setattr__(self, "sensors", tuple(n.strip() for n in self.sensors.split(",") if n.strip()))
+        if isinstance(self.sensors, (list, tuple)) and not len(self.sensors):  # no sensor: the same as None
+            object.__setattr__(self, "sensors", None)
+        super().__post_init__()
+
+    def extra_sensors(self) -> ExtraSensors | None:
+        """The sensors of `sensors` (None without any), for DrivingTask."""
+        if self.sensors is None:
+            return None
+        return ExtraSensors(self.sensors, self.sensor_size, self.range_rays, self.range_max)
 
 
 @dataclass(frozen=True)
@@ -148,9 +167,13 @@ class DrivingTask(control.Task):
     (`comfort_sample`) after every reset and control step; the DrivingEnvironment drives it and puts the
     metrics (`ComfortMetrics.as_dict()` keys, e.g. `jerk_p95_mps3`) into `info` at the episode's last step,
     sampled every control period `control_dt` [s] (set by the DrivingEnvironment).
+
+    Extra sensors (`sensors`, from the config's `sensors` keyword): a task adds `sensor_spec` to its
+    observation_spec and `sensor_observation` to its observation.
     """
 
-    def __init__(self, model: mujoco.MjModel, road_map: RoadMap, vehicle: str, random=None):
+    def __init__(self, model: mujoco.MjModel, road_map: RoadMap, vehicle: str, random=None,
+                 sensors: ExtraSensors | None = None):
         super().__init__()
         self._random = random if isinstance(random, np.random.RandomState) else np.random.RandomState(random)
         self.road_map = road_map
@@ -159,6 +182,7 @@ class DrivingTask(control.Task):
         self.collision_sensor = CollisionSensor(model)
         self.lane_invasion_sensor = LaneInvasionSensor(road_map)
         self.cameras: dict[tuple[str, int, int, bool], CameraRenderer] = {}
+        self.sensors = sensors  # depth, segmentation, range ring on request
         self.info: dict[str, Any] = {}  # episode metrics, refreshed every step
         self.reward_terms: dict[str, float] = {}  # this step's reward, term by term (for logs)
         self.comfort = ComfortMeter()  # this episode's chassis samples, one per control step
@@ -249,11 +273,22 @@ class DrivingTask(control.Task):
             self.cameras[key] = CameraRenderer(physics.raw_model, camera, height, width, antialias)
         return self.cameras[key].render(physics.raw_data, markers)
 
+    def sensor_spec(self, physics: Physics) -> dict[str, specs.BoundedArray]:
+        """Specs of the extra sensors' observations, by name ({} without sensors)."""
+        return {} if self.sensors is None else self.sensors.specs(physics.raw_model)
+
+    def sensor_observation(self, physics: Physics) -> dict[str, np.ndarray]:
+        """The extra sensors' observations of the current state ({} without sensors)."""
+        return {} if self.sensors is None else self.sensors(physics.raw_model, physics.raw_data)
+
     def close_cameras(self) -> None:
-        """Free the camera renderers (each in its own GL context); a later render_camera makes new ones."""
+        """Free the camera renderers and the sensors' camera (each in its own GL context); a later render
+        makes new ones."""
         for renderer in self.cameras.values():
             renderer.close()
         self.cameras.clear()
+        if self.sensors is not None:
+            self.sensors.close()
 
 
 class DrivingEnvironment(control.Environment):

@@ -147,7 +147,7 @@ class RoundaboutTask(DrivingTask):
     """Enter the roundabout from a yield line and reach the destination on a chosen exit (eq. 12 reward)."""
 
     def __init__(self, model, road_map: RoadMap, kinds: list[str], config: RoundaboutConfig):
-        super().__init__(model, road_map, config.vehicle, config.random)
+        super().__init__(model, road_map, config.vehicle, config.random, config.extra_sensors())
         self.config = config
         self.observation = config.observation
         self.routes = roads.roundabout_routes(road_map)
@@ -313,12 +313,14 @@ class RoundaboutTask(DrivingTask):
             )
             if self.camera_ego:
                 spec["ego"] = specs.Array((6,), np.float32, "ego")
-            return spec
-        return collections.OrderedDict(
-            ego=specs.Array((6,), np.float32, "ego"),
-            destination=destination,
-            road_users=specs.Array((self.neighbours, ROAD_USER_COLUMNS), np.float32, "road_users"),
-        )
+        else:
+            spec = collections.OrderedDict(
+                ego=specs.Array((6,), np.float32, "ego"),
+                destination=destination,
+                road_users=specs.Array((self.neighbours, ROAD_USER_COLUMNS), np.float32, "road_users"),
+            )
+        spec.update(self.sensor_spec(physics))
+        return spec
 
     def destination_vector(self, frame: str | None = None) -> np.ndarray:
         """(2,) [m] from the ego to its destination: world axes, or the car's ("ego": x ahead, y to the left).
@@ -337,9 +339,9 @@ class RoundaboutTask(DrivingTask):
                                        road_users=self._nearest_road_users(physics))
 
     def get_observation(self, physics: Physics) -> collections.OrderedDict:
-        obs = collections.OrderedDict()
-        destination = self.destination_vector()
         if self.observation == "camera":
+            obs = collections.OrderedDict()
+            destination = self.destination_vector()
             size = self.image_size
             rgb = self.render_camera(physics, self.camera, size, size)
             gray = (rgb @ np.array([0.299, 0.587, 0.114])).astype(np.uint8)
@@ -351,8 +353,10 @@ class RoundaboutTask(DrivingTask):
             obs["destination"] = destination
             if self.camera_ego:
                 obs["ego"] = self._ego_vector()
-            return obs
-        return self.features_observation(physics)
+        else:
+            obs = self.features_observation(physics)
+        obs.update(self.sensor_observation(physics))
+        return obs
 
     def _ego_vector(self) -> np.ndarray:
         """(6,) speed [m/s], yaw rate [rad/s], heading error [rad], lateral offset [m], cos/sin(yaw)."""

@@ -93,7 +93,7 @@ class UrbanTask(DrivingTask):
     """Drive the route (or one scenario of it) to its end in traffic (§5.1 reward)."""
 
     def __init__(self, model, route: UrbanRoute, kinds: list[str], scenario: str, config: UrbanConfig):
-        super().__init__(model, route.road_map, config.vehicle, config.random)
+        super().__init__(model, route.road_map, config.vehicle, config.random, config.extra_sensors())
         self.config = config
         self.observation = config.observation
         self.urban = route
@@ -208,12 +208,15 @@ class UrbanTask(DrivingTask):
         ego = specs.BoundedArray((4,), np.float32, 0.0, 1.0, "ego")
         if self.observation == "camera":
             size = self.config.image_size
-            return collections.OrderedDict(image=specs.BoundedArray((size, size, 3), np.uint8, 0, 255, "image"),
+            spec = collections.OrderedDict(image=specs.BoundedArray((size, size, 3), np.uint8, 0, 255, "image"),
                                            ego=ego)
-        return collections.OrderedDict(
-            ego=ego, scenario=specs.BoundedArray((len(SCENARIOS),), np.float32, 0.0, 1.0, "scenario"),
-            adversaries=specs.BoundedArray((self.config.adversaries, ADVERSARY_COLUMNS), np.float32, 0.0, 1.0,
-                                           "adversaries"))
+        else:
+            spec = collections.OrderedDict(
+                ego=ego, scenario=specs.BoundedArray((len(SCENARIOS),), np.float32, 0.0, 1.0, "scenario"),
+                adversaries=specs.BoundedArray((self.config.adversaries, ADVERSARY_COLUMNS), np.float32, 0.0, 1.0,
+                                               "adversaries"))
+        spec.update(self.sensor_spec(physics))
+        return spec
 
     def _ego_vector(self) -> np.ndarray:
         values = [self.speed / SPEED_SCALE, (self.heading_error + math.pi) / (2 * math.pi),
@@ -255,11 +258,13 @@ class UrbanTask(DrivingTask):
         ego = self._ego_vector()
         if self.observation == "camera":
             size = self.config.image_size
-            return collections.OrderedDict(image=self.render_camera(physics, "ego/front", size, size).copy(),
-                                           ego=ego)
-        scenario = np.zeros(len(SCENARIOS), np.float32)
-        scenario[SCENARIOS.index(self.active_scenario())] = 1.0
-        return collections.OrderedDict(ego=ego, scenario=scenario, adversaries=self.adversary_matrix())
+            obs = collections.OrderedDict(image=self.render_camera(physics, "ego/front", size, size).copy(), ego=ego)
+        else:
+            scenario = np.zeros(len(SCENARIOS), np.float32)
+            scenario[SCENARIOS.index(self.active_scenario())] = 1.0
+            obs = collections.OrderedDict(ego=ego, scenario=scenario, adversaries=self.adversary_matrix())
+        obs.update(self.sensor_observation(physics))
+        return obs
 
 
 # --- registered tasks -----------------------------------------------------------------------------------

@@ -65,7 +65,7 @@ class WaypointTask(DrivingTask):
     """Follow the waypoints of one of `routes` (lists of lane ids), or of a random route if `routes` is None."""
 
     def __init__(self, model, road_map: RoadMap, routes: list[list[int]] | None, config: WaypointsConfig):
-        super().__init__(model, road_map, config.vehicle, config.random)
+        super().__init__(model, road_map, config.vehicle, config.random, config.extra_sensors())
         self.config = config
         self.routes = routes
         self.observation = config.observation
@@ -179,15 +179,18 @@ class WaypointTask(DrivingTask):
                   for name in ("lane_offset", "heading_error", "speed", "waypoint_distance")}
         if self.observation == "camera":
             size = self.image_size
-            return collections.OrderedDict(
+            spec = collections.OrderedDict(
                 image=specs.BoundedArray((size, size, 3), np.uint8, 0, 255, "image"),
                 waypoint_distance=scalar["waypoint_distance"],
                 heading_error=scalar["heading_error"], speed=scalar["speed"],
             )
-        return collections.OrderedDict(
-            waypoint_angles=specs.Array((N_WAYPOINT_ANGLES,), np.float32, "waypoint_angles"),
-            lane_offset=scalar["lane_offset"], heading_error=scalar["heading_error"], speed=scalar["speed"],
-        )
+        else:
+            spec = collections.OrderedDict(
+                waypoint_angles=specs.Array((N_WAYPOINT_ANGLES,), np.float32, "waypoint_angles"),
+                lane_offset=scalar["lane_offset"], heading_error=scalar["heading_error"], speed=scalar["speed"],
+            )
+        spec.update(self.sensor_spec(physics))
+        return spec
 
     def get_observation(self, physics: Physics) -> collections.OrderedDict:
         theta = np.float32(np.degrees(self.heading_error))
@@ -207,6 +210,7 @@ class WaypointTask(DrivingTask):
             obs["lane_offset"] = np.array([self.lane_offset], np.float32)
         obs["heading_error"] = np.array([theta], np.float32)
         obs["speed"] = np.array([speed], np.float32)
+        obs.update(self.sensor_observation(physics))
         return obs
 
 
