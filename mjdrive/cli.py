@@ -150,7 +150,7 @@ def fresh_folder(path: str | Path, overwrite: bool, patterns: tuple[str, ...] = 
 
 def sensor_names(text: str) -> tuple[str, ...]:
     """argparse type: comma-separated extra sensors (depth, segmentation, range)."""
-    from mjdrive.envs.gym_env import SENSORS
+    from mjdrive.sensors import SENSORS
 
     names = tuple(name for name in text.split(",") if name)
     unknown = [name for name in names if name not in SENSORS]
@@ -223,6 +223,10 @@ def _checked_task(args) -> tuple[str, str, dict]:
     task_kwargs = _parse_kwargs(args.task_kwarg)
     if args.live and not args.record:
         raise ValueError("--live streams the channels of the episode logs: drop --no-record")
+    if args.sensors:  # the task keyword `sensors`: in the summary and the logs' task keywords like any other
+        if "sensors" in task_kwargs:
+            raise ValueError("give the sensors once: --sensors or --task-kwarg sensors=...")
+        task_kwargs["sensors"] = list(args.sensors)
     _check_kwargs(domain, task, task_kwargs)
     return domain, task, task_kwargs
 
@@ -236,7 +240,7 @@ def cmd_run(args) -> int:
 
     domain, task, task_kwargs = _checked_task(args)
     note(f"mjdrive run: building {args.task} ...")
-    env = make_env(domain, task, sensors=args.sensors, **task_kwargs)  # bad keywords: reported before the folder
+    env = make_env(domain, task, **task_kwargs)  # bad keywords: reported before the folder
     out = fresh_folder(args.out, args.overwrite)
     policy = make_policy(args.policy, env, args.seed)
     if args.record:  # one MCAP file per episode in OUT (see mjdrive/record/recorder.py)
@@ -299,7 +303,7 @@ def cmd_drive(args) -> int:
     if not has_display():
         raise ValueError("drive opens a window: set DISPLAY (or run it under `xvfb-run`)")
     note(f"mjdrive drive: building {args.task} ...")
-    env = make_env(domain, task, sensors=args.sensors, **task_kwargs)
+    env = make_env(domain, task, **task_kwargs)
     out = fresh_folder(args.out, args.overwrite)
     if args.record:
         from mjdrive.record import RecordEpisodes
@@ -448,7 +452,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="run at X simulated seconds per wall second (1: as it happens, to watch with --live; "
                           "0: as fast as it goes)")
     run.add_argument("--sensors", type=sensor_names, default=(), metavar="NAMES",
-                     help="extra observations, recorded in the logs: depth,segmentation,range (comma-separated)")
+                     help="extra observations, recorded in the logs: depth,segmentation,range (comma-separated; "
+                     "the task keyword `sensors`)")
     add_live_arguments(run)
     run.set_defaults(func=cmd_run)
 
@@ -465,7 +470,8 @@ def build_parser() -> argparse.ArgumentParser:
     drive.add_argument("--record", action=argparse.BooleanOptionalAction, default=True,
                        help="write an MCAP log per episode into OUT")
     drive.add_argument("--sensors", type=sensor_names, default=(), metavar="NAMES",
-                       help="extra sensors recorded in the logs: depth,segmentation,range (comma-separated)")
+                       help="extra sensors recorded in the logs: depth,segmentation,range (comma-separated; "
+                       "the task keyword `sensors`)")
     add_live_arguments(drive)
     drive.set_defaults(func=cmd_drive)
 
