@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from mjdrive.agents.algorithms import agent_from_payload
 from mjdrive.agents.common import CheckpointError, load_checkpoint, save_checkpoint, split_task
 
 RULES = ("mean", "min_pedal")
@@ -65,8 +66,6 @@ class EnsembleAgent:
 
 def ensemble_agent(payload: dict, path: str | Path) -> EnsembleAgent:
     """The acting ensemble of the ensemble checkpoint at `path` (its loaded `payload`)."""
-    from mjdrive.agents.evaluate import agent_from_payload
-
     state = payload["state"]
     if state.get("rule") not in RULES:
         raise CheckpointError(f"{path}: an ensemble with the rule {state.get('rule')!r}; valid: {', '.join(RULES)}")

@@ -13,8 +13,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from mjdrive.agents.common import CheckpointError, load_checkpoint, parse_yaml, split_task
-from mjdrive.agents.train import agent_class
+from mjdrive.agents.algorithms import agent_from_payload
+from mjdrive.agents.common import load_checkpoint, parse_yaml, split_task
+from mjdrive.agents.ensemble import describe, ensemble_agent
 from mjdrive.envs import make_env
 from mjdrive.record.summary import (
     COMFORT_COLUMNS,
@@ -31,35 +32,8 @@ def load_agent(path: str | Path) -> tuple[Any, dict]:
     """(agent ready to act, checkpoint payload) from a full checkpoint, a policy.pt or an ensemble."""
     payload = load_checkpoint(path)
     if payload["algo"] == "ensemble":
-        from mjdrive.agents.ensemble import ensemble_agent
-
         return ensemble_agent(payload, path), payload
     return agent_from_payload(payload, str(path)), payload
-
-
-def agent_from_payload(payload: dict, name: str) -> Any:
-    """The acting agent of a loaded checkpoint payload (`name` for errors)."""
-    config = payload["config"]
-    domain, task = split_task(config["task"])
-    task_kwargs = config.get("task_kwargs", {})
-    if not isinstance(task_kwargs, dict):
-        raise CheckpointError(f"{name}: its config's task_kwargs is a {type(task_kwargs).__name__}, not a dict")
-    try:
-        env = make_env(domain, task, actions=config.get("actions", "continuous"), **task_kwargs)
-    except (KeyError, TypeError) as error:
-        raise CheckpointError(f"{name}: its config cannot build the env {config['task']} ({error})") from error
-    try:
-        agent = agent_class(payload["algo"])(config, env.observation_space, env.action_space)
-    except (KeyError, TypeError) as error:
-        raise CheckpointError(f"{name}: its config cannot build a {payload['algo']} agent ({error})") from error
-    finally:
-        env.close()
-    try:
-        agent.load_state_dict(payload["state"], inference_only=True)
-    except (KeyError, TypeError, AttributeError) as error:  # a state without the networks this algo needs
-        raise CheckpointError(f"{name}: its state cannot load into a {payload['algo']} agent "
-                              f"({type(error).__name__}: {error})") from error
-    return agent
 
 
 @dataclass(frozen=True)
@@ -99,7 +73,7 @@ class EpisodeRunner:
 
             options = RecordOptions(live_port=spec.live_port, live_host=spec.live_host)
             self.live = RecordEpisodes(self.env, spec.record_dir, options)
-            from mjdrive.cli import announce_live
+            from mjdrive.record.live import announce_live
 
             announce_live(self.live)
 
@@ -225,8 +199,6 @@ def to_markdown(result: dict) -> str:
         "",
     ]
     if result.get("ensemble"):
-        from mjdrive.agents.ensemble import describe
-
         lines += [f"This is {describe(result['ensemble'])}; the steps above are its longest-trained member's.", ""]
     if result["task"].startswith("roundabout"):
         lines += [
@@ -275,7 +247,7 @@ def eval_command(args) -> int:
     """`mjdrive eval` (argument parsing lives in mjdrive/cli.py): prints markdown, writes OUT.md/OUT.json."""
     import json
 
-    from mjdrive.cli import fresh_folder
+    from mjdrive.run_folder import fresh_folder
 
     task_kwargs = parse_task_kwargs(args.task_kwarg)
     record_dir = None

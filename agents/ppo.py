@@ -23,6 +23,7 @@ from rsl_rl.utils import resolve_class, resolve_obs_groups
 from tensordict import TensorDict
 
 from mjdrive.agents.common import CheckpointError, Run, load_module_state
+from mjdrive.agents.env_factory import make_training_env
 from mjdrive.envs.batched import ObservationLayout
 from mjdrive.envs.rsl_rl_env import RslRlVecEnv, action_scaler, to_tensordict
 
@@ -84,8 +85,6 @@ class PPOAgent:
 
 def train(config: dict, run: Run, resume_state: dict | None = None) -> None:
     """PPO iterations until `run.total_steps` env steps."""
-    from mjdrive.agents.train import make_training_env
-
     cfg = copy.deepcopy(config["rsl_rl"])
     cfg.setdefault("save_interval", 10**9)
     env = RslRlVecEnv(make_training_env(config), reward_scale=float(config.get("reward_scale", 1.0)))

@@ -17,18 +17,17 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from mjdrive.agents.algorithms import agent_class
 from mjdrive.agents.common import (
     CheckpointError,
     ReplayBuffer,
     Run,
     load_checkpoint,
-    make_batched_env,
     save_checkpoint,
     set_seed,
-    training_tasks,
 )
+from mjdrive.agents.env_factory import make_training_env
 
-ALGOS = ("ppo", "sac", "dqn", "trpo")
 # the entries of each learner's state that acting needs (policy.pt keeps only these)
 INFERENCE_KEYS = {"sac": ("actor",), "dqn": ("q",), "ppo": ("actor_state_dict",), "trpo": ("policy",)}
 # config keys that must match to resume a run
@@ -83,43 +82,6 @@ def load_initial_state(path: str | Path, config: dict) -> tuple[dict, int, bool]
     check_resumable({"algorithm": network(payload["config"])}, {"algorithm": network(config)}, ("algorithm",),
                     f"start from {path}")
     return payload["state"], experience, True
-
-
-def make_training_env(config: dict, num_envs: int | None = None, **overrides):
-    """The vector env a config describes (`mjdrive.agents.common.make_batched_env`'s keys), in this process, or with
-    `workers: N` over N worker processes, or with `ray: ADDRESS` ("local", "auto", HOST:PORT) over N Ray actors
-    (`mjdrive.envs.vector`); every backend gives the same episodes."""
-    workers, address = int(config.get("workers") or 0), config.get("ray")
-    if not workers and address is None:
-        return make_batched_env(config, num_envs, **overrides)
-    from mjdrive.envs.vector import make_vec_env
-
-    domain, tasks = training_tasks(config)
-    return make_vec_env(domain, tasks, num_envs=num_envs or config.get("num_envs", 1),
-                        actions=config.get("actions", "continuous"), workers=workers, ray=address,
-                        backend=config.get("backend", "threads"), record_dir=config.get("record_dir"),
-                        **{**config.get("task_kwargs", {}), **overrides})
-
-
-def agent_class(algo: str):
-    """The acting/learning class of `algo` (imported lazily: PPO pulls rsl-rl in)."""
-    if algo == "sac":
-        from mjdrive.agents.sac import SACAgent
-
-        return SACAgent
-    if algo == "dqn":
-        from mjdrive.agents.dqn import DQNAgent
-
-        return DQNAgent
-    if algo == "ppo":
-        from mjdrive.agents.ppo import PPOAgent
-
-        return PPOAgent
-    if algo == "trpo":
-        from mjdrive.agents.trpo import TRPOAgent
-
-        return TRPOAgent
-    raise ValueError(f"unknown algo {algo!r}; valid: {', '.join(ALGOS)}")
 
 
 def train(config: dict, out: str | Path, resume: bool = False, progress: bool = True) -> Path:

@@ -12,6 +12,7 @@ import torch.nn as nn
 from torch.distributions import Categorical, Distribution, Normal
 
 from mjdrive.agents.common import Encoder, ObsBatch, Run, load_module_state, mlp
+from mjdrive.agents.env_factory import make_training_env
 from mjdrive.envs.batched import ObservationLayout
 
 DEFAULTS = {
@@ -179,8 +180,6 @@ class TRPOAgent:
 
 def train(config: dict, run: Run, resume_state: dict | None = None) -> None:
     """Collect `rollout_steps` per env copy, compute GAE, one TRPO step; until `run.total_steps`."""
-    from mjdrive.agents.train import make_training_env
-
     env = make_training_env(config)
     try:
         _learn(config, env, run, resume_state)

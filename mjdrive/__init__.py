@@ -11,15 +11,11 @@ _os.environ.setdefault("MUJOCO_GL", "egl")
 # otherwise wake up after every physics step and compete with it (and with other envs) for the cores.
 _os.environ.setdefault("LP_NUM_THREADS", "1")
 
-from pathlib import Path as _Path  # noqa: E402
-
-XML_DIR = _Path(__file__).resolve().parent / "xml"  # MJCF assets: vehicles/, scenes/
-
-__version__ = "0.1.0"
-
+from mjdrive.assets import XML_DIR as XML_DIR  # noqa: E402  (MJCF assets: vehicles/, scenes/)
 from mjdrive.config import ConfigError as ConfigError  # noqa: E402  (a ValueError: bad keyword, name or value)
 
 # Register the gymnasium ids (cheap: entry points are strings, nothing heavy is imported here).
 from mjdrive.envs.registration import register_all as _register_all  # noqa: E402
+from mjdrive.version import __version__ as __version__  # noqa: E402
 
 _register_all()

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from mjdrive.policies import POLICIES
+from mjdrive.run_folder import fresh_folder
 
 MAX_SEED = 2**32 - 1
 
@@ -122,32 +123,6 @@ def _parse_kwargs(pairs: list[str]) -> dict:
     return out
 
 
-RUN_FILES = ("*.mcap", "*.mcap.part", "episode_*.mp4", "summary.json")  # what `mjdrive run` writes
-
-
-def fresh_folder(path: str | Path, overwrite: bool, patterns: tuple[str, ...] = RUN_FILES,
-                 option: str = "--out") -> Path:
-    """A folder for one run's outputs: made if missing; an existing non-empty one is refused (so two runs
-    never mix), or with `overwrite` emptied of the files a run writes (`patterns`); anything else in it
-    is left alone and refused, never deleted."""
-    folder = Path(path)
-    if folder.exists() and not folder.is_dir():
-        raise ValueError(f"{option} {folder} is a file, not a folder")
-    if folder.is_dir() and any(folder.iterdir()):
-        if not overwrite:
-            raise ValueError(f"{option} {folder} is not empty (a folder holds one run): choose a new folder, "
-                             "or pass --overwrite to replace its run")
-        for pattern in patterns:
-            for file in folder.glob(pattern):
-                file.unlink()
-        others = sorted(p.name for p in folder.iterdir())
-        if others:
-            raise ValueError(f"{option} {folder} holds files that are not a run's ({', '.join(others[:3])}"
-                             f"{', ...' if len(others) > 3 else ''}); --overwrite only replaces a run's files")
-    folder.mkdir(parents=True, exist_ok=True)
-    return folder
-
-
 def sensor_names(text: str) -> tuple[str, ...]:
     """argparse type: comma-separated extra sensors (depth, segmentation, range)."""
     from mjdrive.sensors import SENSORS
@@ -177,15 +152,6 @@ def record_options(args, **options):
     if args.live:
         options.update(live_port=args.live_port, live_host=args.live_host)
     return RecordOptions(**options)
-
-
-def announce_live(env) -> None:
-    url = getattr(getattr(env, "recorder", None), "live_url", None)
-    if url:
-        from mjdrive.progress import note
-        from mjdrive.record import LAYOUT
-
-        note(f"live: {url} (Foxglove: Open connection > Foxglove WebSocket; layout {LAYOUT})")
 
 
 def cmd_list(args) -> int:
@@ -245,6 +211,7 @@ def cmd_run(args) -> int:
     policy = make_policy(args.policy, env, args.seed)
     if args.record:  # one MCAP file per episode in OUT (see mjdrive/record/recorder.py)
         from mjdrive.record import RecordEpisodes
+        from mjdrive.record.live import announce_live
 
         env = RecordEpisodes(env, out, record_options(args, camera_every=args.record_camera_every,
                                                       image_format=args.record_image_format))
@@ -307,6 +274,7 @@ def cmd_drive(args) -> int:
     out = fresh_folder(args.out, args.overwrite)
     if args.record:
         from mjdrive.record import RecordEpisodes
+        from mjdrive.record.live import announce_live
 
         env = RecordEpisodes(env, out, record_options(args))
         announce_live(env)

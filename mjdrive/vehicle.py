@@ -15,7 +15,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from mjdrive import XML_DIR
+from mjdrive.assets import XML_DIR
 
 WHEELS = ("fl", "fr", "rl", "rr")  # order of every per-wheel array
 BRAKE_HOLD_SPEED = 0.25  # [m/s] below this speed the brakes act as a stiff damper that holds the car

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from mjdrive import XML_DIR
+from mjdrive.assets import XML_DIR
 from mjdrive.roads import Marking, RoadMap
 from mjdrive.vehicle import add_vehicle
 

@@ -9,6 +9,7 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("rsl_rl")
 
+from mjdrive.agents.algorithms import agent_class  # noqa: E402
 from mjdrive.agents.common import (  # noqa: E402
     CheckpointError,
     apply_overrides,
@@ -17,7 +18,7 @@ from mjdrive.agents.common import (  # noqa: E402
     save_checkpoint,
 )
 from mjdrive.agents.evaluate import evaluate, load_agent, to_markdown  # noqa: E402
-from mjdrive.agents.train import agent_class, train  # noqa: E402
+from mjdrive.agents.train import train  # noqa: E402
 from mjdrive.envs.batched import BatchedEnv  # noqa: E402
 
 SMALL = ["num_envs=2", "nthread=1", "checkpoint_every=128", "log_every=50", "tensorboard=false",

@@ -6,10 +6,10 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from mjdrive.agents.algorithms import agent_class  # noqa: E402
 from mjdrive.agents.common import CheckpointError, apply_overrides, load_checkpoint, load_config, save_checkpoint  # noqa: E402
 from mjdrive.agents.ensemble import EnsembleAgent, save_ensemble  # noqa: E402
 from mjdrive.agents.evaluate import evaluate, load_agent, to_markdown  # noqa: E402
-from mjdrive.agents.train import agent_class  # noqa: E402
 from mjdrive.cli import main as cli_main  # noqa: E402
 from mjdrive.envs.batched import BatchedEnv  # noqa: E402
 

@@ -6,8 +6,8 @@ Evaluation: `mjdrive.agents.evaluate.evaluate` of a committed roundabout SAC (fe
 workers 0 (this process), 1 and 2; env steps per wall second, worker start-up included, and a check that the
 rows are identical. Training: the collection loop of two training configs (PPO features on waypoints/straight,
 16 copies; SAC camera on roundabout/d210, 4 copies): the learner's policy acts on the batch in this process and
-the vector env steps it (`mjdrive.agents.train.make_training_env`), no gradient updates; env steps per wall second after
-a warm-up. Every figure of a table comes from one run of this script, ratios between figures of that run.
+the vector env steps it (`mjdrive.agents.env_factory.make_training_env`), no gradient updates; env steps per wall
+second after a warm-up. Every figure of a table comes from one run of this script, ratios between figures of that run.
 Projections for bigger nodes use the measured per-worker rate and the measured time this process spends acting.
 """
 
@@ -24,9 +24,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from mjdrive.agents.algorithms import agent_class  # noqa: E402
 from mjdrive.agents.common import apply_overrides, load_config  # noqa: E402
+from mjdrive.agents.env_factory import make_training_env  # noqa: E402
 from mjdrive.agents.evaluate import evaluate  # noqa: E402
-from mjdrive.agents.train import agent_class, make_training_env  # noqa: E402
 from mjdrive.envs.fanout import fan_out  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
