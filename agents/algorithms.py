@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from mjdrive.agents.common import CheckpointError, split_task
+from mjdrive.agents.checkpoints import CheckpointError
+from mjdrive.agents.env_factory import split_task
 from mjdrive.envs import make_env
 
 ALGOS = ("ppo", "sac", "dqn", "trpo")

@@ -23,9 +23,13 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from mjdrive.agents.common import ObsBatch, apply_overrides, load_config, save_checkpoint, set_seed, split_task
+from mjdrive.agents.checkpoints import save_checkpoint
+from mjdrive.agents.config import apply_overrides, load_config
+from mjdrive.agents.env_factory import split_task
 from mjdrive.agents.evaluate import load_agent
+from mjdrive.agents.observations import ObsBatch
 from mjdrive.agents.sac import SACAgent
+from mjdrive.agents.seeding import set_seed
 from mjdrive.envs import make_env
 
 DEFAULTS = {

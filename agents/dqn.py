@@ -14,7 +14,9 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from mjdrive.agents.common import Encoder, ObsBatch, load_module_state, load_optimizer_state, mlp
+from mjdrive.agents.checkpoints import load_module_state, load_optimizer_state
+from mjdrive.agents.networks import Encoder, mlp
+from mjdrive.agents.observations import ObsBatch
 from mjdrive.envs.batched import ObservationLayout
 
 DEFAULTS = {

@@ -29,7 +29,8 @@ from typing import Any
 import numpy as np
 
 from mjdrive.agents.algorithms import agent_from_payload
-from mjdrive.agents.common import CheckpointError, load_checkpoint, save_checkpoint, split_task
+from mjdrive.agents.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
+from mjdrive.agents.env_factory import split_task
 
 RULES = ("mean", "min_pedal")
 CONTINUOUS_ACTIONS = ("continuous", "pedal")  # action sets whose actions can be averaged

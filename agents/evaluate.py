@@ -14,8 +14,10 @@ from pathlib import Path
 from typing import Any
 
 from mjdrive.agents.algorithms import agent_from_payload
-from mjdrive.agents.common import load_checkpoint, parse_yaml, split_task
+from mjdrive.agents.checkpoints import load_checkpoint
+from mjdrive.agents.config import parse_yaml
 from mjdrive.agents.ensemble import describe, ensemble_agent
+from mjdrive.agents.env_factory import split_task
 from mjdrive.envs import make_env
 from mjdrive.record.summary import (
     COMFORT_COLUMNS,

@@ -19,7 +19,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from mjdrive.agents.common import ObsBatch, ReplayBuffer, Run, bounded_action_map, training_tasks
+from mjdrive.agents.env_factory import training_tasks
+from mjdrive.agents.networks import bounded_action_map
+from mjdrive.agents.observations import ObsBatch
+from mjdrive.agents.replay import ReplayBuffer
+from mjdrive.agents.run_log import Run
 from mjdrive.envs.vector import VecEnv
 
 DEMONSTRATION_DEFAULTS = {

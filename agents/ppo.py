@@ -22,8 +22,9 @@ from rsl_rl.runners import OnPolicyRunner
 from rsl_rl.utils import resolve_class, resolve_obs_groups
 from tensordict import TensorDict
 
-from mjdrive.agents.common import CheckpointError, Run, load_module_state
+from mjdrive.agents.checkpoints import CheckpointError, load_module_state
 from mjdrive.agents.env_factory import make_training_env
+from mjdrive.agents.run_log import Run
 from mjdrive.envs.batched import ObservationLayout
 from mjdrive.envs.rsl_rl_env import RslRlVecEnv, action_scaler, to_tensordict
 

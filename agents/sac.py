@@ -20,7 +20,9 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from mjdrive.agents.common import Encoder, ObsBatch, bounded_action_map, load_module_state, load_optimizer_state, mlp
+from mjdrive.agents.checkpoints import load_module_state, load_optimizer_state
+from mjdrive.agents.networks import Encoder, bounded_action_map, mlp
+from mjdrive.agents.observations import ObsBatch
 from mjdrive.envs.batched import ObservationLayout
 
 DEFAULTS = {

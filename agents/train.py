@@ -18,15 +18,11 @@ import numpy as np
 import torch
 
 from mjdrive.agents.algorithms import agent_class
-from mjdrive.agents.common import (
-    CheckpointError,
-    ReplayBuffer,
-    Run,
-    load_checkpoint,
-    save_checkpoint,
-    set_seed,
-)
+from mjdrive.agents.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
 from mjdrive.agents.env_factory import make_training_env
+from mjdrive.agents.replay import ReplayBuffer
+from mjdrive.agents.run_log import Run
+from mjdrive.agents.seeding import set_seed
 
 # the entries of each learner's state that acting needs (policy.pt keeps only these)
 INFERENCE_KEYS = {"sac": ("actor",), "dqn": ("q",), "ppo": ("actor_state_dict",), "trpo": ("policy",)}
@@ -183,7 +179,7 @@ def export_policy(checkpoint: str | Path, out: str | Path) -> Path:
 
 def train_command(args) -> int:
     """`mjdrive train` (argument parsing lives in mjdrive/cli.py)."""
-    from mjdrive.agents.common import apply_overrides, load_config
+    from mjdrive.agents.config import apply_overrides, load_config
 
     config = load_config(args.config or args.algo)
     if args.config is None and config.get("algo") != args.algo:

@@ -11,8 +11,11 @@ import torch
 import torch.nn as nn
 from torch.distributions import Categorical, Distribution, Normal
 
-from mjdrive.agents.common import Encoder, ObsBatch, Run, load_module_state, mlp
+from mjdrive.agents.checkpoints import load_module_state
 from mjdrive.agents.env_factory import make_training_env
+from mjdrive.agents.networks import Encoder, mlp
+from mjdrive.agents.observations import ObsBatch
+from mjdrive.agents.run_log import Run
 from mjdrive.envs.batched import ObservationLayout
 
 DEFAULTS = {

@@ -369,7 +369,7 @@ def cmd_eval(args) -> int:
 
     _say_when_not_a_terminal("mjdrive eval: loading torch and checking the checkpoint ...")
     with Starting("mjdrive eval: loading torch and checking the checkpoint", terminal_only=True):
-        from mjdrive.agents.common import load_checkpoint
+        from mjdrive.agents.checkpoints import load_checkpoint
 
         load_checkpoint(args.checkpoint)  # a bad file is a one-line error, before any status line in a log
     with Starting("mjdrive eval: loading the policy and the env"):

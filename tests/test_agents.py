@@ -10,13 +10,8 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("rsl_rl")
 
 from mjdrive.agents.algorithms import agent_class  # noqa: E402
-from mjdrive.agents.common import (  # noqa: E402
-    CheckpointError,
-    apply_overrides,
-    load_checkpoint,
-    load_config,
-    save_checkpoint,
-)
+from mjdrive.agents.checkpoints import CheckpointError, load_checkpoint, save_checkpoint  # noqa: E402
+from mjdrive.agents.config import apply_overrides, load_config  # noqa: E402
 from mjdrive.agents.evaluate import evaluate, load_agent, to_markdown  # noqa: E402
 from mjdrive.agents.train import train  # noqa: E402
 from mjdrive.envs.batched import BatchedEnv  # noqa: E402
@@ -157,7 +152,7 @@ def test_resumed_off_policy_run_refills_its_buffer_before_updating(tmp_path):
 
 
 def test_replay_buffer_saves_and_loads_its_transitions_including_after_wrapping(tmp_path):
-    from mjdrive.agents.common import ReplayBuffer
+    from mjdrive.agents.replay import ReplayBuffer
     from mjdrive.envs.batched import ObservationLayout
 
     config = _config("sac", CAMERA)
@@ -342,7 +337,7 @@ def test_rsl_rl_vecenv_groups_actions_and_time_outs():
 
 
 def test_random_shift_moves_each_frame_stack_by_its_own_offset_with_edge_padding():
-    from mjdrive.agents.common import random_shift
+    from mjdrive.agents.augment import random_shift
 
     image = torch.arange(2 * 3 * 20 * 20, dtype=torch.int64).reshape(2, 3, 20, 20).to(torch.float32)
     shifted = random_shift(image, 4, generator=torch.Generator().manual_seed(0))
@@ -369,7 +364,7 @@ def test_sac_actor_reads_the_critics_encoder_and_only_the_critic_trains_it():
     encoder_ids = {id(p) for p in agent.critic.encoder.parameters()}
     actor_ids = {id(p) for group in agent.actor_optimizer.param_groups for p in group["params"]}
     assert encoder_ids and not encoder_ids & actor_ids  # the actor's optimizer never steps the encoder
-    from mjdrive.agents.common import ObsBatch
+    from mjdrive.agents.observations import ObsBatch
 
     def batch():
         return ObsBatch(torch.randn(8, 3), torch.randint(0, 256, (8, 3, 32, 32), dtype=torch.uint8))
@@ -385,7 +380,7 @@ def test_sac_actor_reads_the_critics_encoder_and_only_the_critic_trains_it():
 def test_sac_bc_alpha_pulls_the_actor_towards_the_demonstrated_actions():
     """TD3+BC's term: with bc_alpha > 0 the greedy action moves to the demonstrations' actions (the batch rows
     flagged `demonstration`; the others are ignored), without it it need not."""
-    from mjdrive.agents.common import ObsBatch
+    from mjdrive.agents.observations import ObsBatch
 
     env = BatchedEnv("waypoints", "straight", num_envs=1)
     states = torch.randn(16, 18)  # 15 waypoint angles, heading error, lane offset, speed
@@ -412,7 +407,7 @@ def test_sac_bc_alpha_pulls_the_actor_towards_the_demonstrated_actions():
 
 
 def test_episode_log_is_flushed_as_episodes_end_and_resume_drops_later_rows(tmp_path):
-    from mjdrive.agents.common import Run
+    from mjdrive.agents.run_log import Run
 
     def ended(n):
         return [{"episode_return": float(i), "episode_length": 10, "success": False, "task": "roundabout/d120"}
@@ -503,7 +498,7 @@ def test_sac_with_demonstrations_collects_them_and_mixes_them_into_updates(tmp_p
     assert summary["episodes"] >= 1 and summary["success"] == summary["episodes"] and summary["collision"] == 0
     assert sizes and set(sizes) == {(12, 4)}  # batch 16, a quarter from the demonstrations
 
-    from mjdrive.agents.common import ReplayBuffer
+    from mjdrive.agents.replay import ReplayBuffer
     from mjdrive.envs import make_env
     from mjdrive.envs.batched import ObservationLayout
 
@@ -531,7 +526,7 @@ def test_demonstrations_go_through_the_mixed_tasks_in_turn(monkeypatch):
     """With `mix_tasks`, the scripted driver's episodes cycle over `task` and `mix_tasks` like the copies do."""
     import mjdrive.envs
     from mjdrive.agents import off_policy
-    from mjdrive.agents.common import ReplayBuffer
+    from mjdrive.agents.replay import ReplayBuffer
     from mjdrive.envs.batched import ObservationLayout
 
     make = mjdrive.envs.make_env

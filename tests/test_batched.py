@@ -114,7 +114,7 @@ def test_roundabout_traffic_moves_between_substeps_as_in_the_single_env(backend)
 
 def test_copies_can_run_different_tasks_of_one_domain_each_as_its_single_env():
     """A batch over the roundabout's densities: copy i runs task[i % 2], bit for bit as its own single env."""
-    from mjdrive.agents.common import make_batched_env
+    from mjdrive.agents.env_factory import make_batched_env
 
     actions = _actions(15, seed=2)
     env = make_env("roundabout", "d160", observation="features", off_route=None)

@@ -17,7 +17,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from mjdrive.agents.common import CheckpointError, load_checkpoint, save_checkpoint  # noqa: E402
+from mjdrive.agents.checkpoints import CheckpointError, load_checkpoint, save_checkpoint  # noqa: E402
 from mjdrive.agents.evaluate import load_agent  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]

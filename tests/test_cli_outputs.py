@@ -192,7 +192,7 @@ def test_observation_spaces_are_finite_and_hold_a_reckless_drive(env_id):
 
 
 def test_ppo_training_prints_no_rsl_rl_model_dump_and_explains_its_rounded_steps(tmp_path, capfd):
-    from mjdrive.agents.common import apply_overrides, load_config
+    from mjdrive.agents.config import apply_overrides, load_config
     from mjdrive.agents.train import train
 
     config = apply_overrides(load_config("ppo"), ["steps=40", "num_envs=2", "rsl_rl.num_steps_per_env=32",

@@ -7,7 +7,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from mjdrive.agents.common import apply_overrides, load_config  # noqa: E402
+from mjdrive.agents.config import apply_overrides, load_config  # noqa: E402
 from mjdrive.agents.distill import distill  # noqa: E402
 from mjdrive.agents.evaluate import evaluate, load_agent  # noqa: E402
 

@@ -7,7 +7,8 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from mjdrive.agents.algorithms import agent_class  # noqa: E402
-from mjdrive.agents.common import CheckpointError, apply_overrides, load_checkpoint, load_config, save_checkpoint  # noqa: E402
+from mjdrive.agents.checkpoints import CheckpointError, load_checkpoint, save_checkpoint  # noqa: E402
+from mjdrive.agents.config import apply_overrides, load_config  # noqa: E402
 from mjdrive.agents.ensemble import EnsembleAgent, save_ensemble  # noqa: E402
 from mjdrive.agents.evaluate import evaluate, load_agent, to_markdown  # noqa: E402
 from mjdrive.cli import main as cli_main  # noqa: E402

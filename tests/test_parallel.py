@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mjdrive.agents.common import apply_overrides, load_config
+from mjdrive.agents.config import apply_overrides, load_config
 from mjdrive.agents.evaluate import evaluate
 from mjdrive.agents.train import train
 from mjdrive.envs.vector import RayVecEnv, SubprocessVecEnv, WorkerDied, make_vec_env
@@ -252,7 +252,7 @@ def test_training_with_workers_learns_from_the_same_episodes(algo, tmp_path):
     process (SAC: the off-policy loop DQN shares; PPO: rsl-rl through RslRlVecEnv)."""
     import torch
 
-    from mjdrive.agents.common import load_checkpoint
+    from mjdrive.agents.checkpoints import load_checkpoint
 
     name, overrides = TRAINING[algo]
     config = apply_overrides(load_config(name), [*overrides, "num_envs=2", "tensorboard=false", "checkpoint_every=1000",

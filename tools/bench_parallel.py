@@ -25,7 +25,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from mjdrive.agents.algorithms import agent_class  # noqa: E402
-from mjdrive.agents.common import apply_overrides, load_config  # noqa: E402
+from mjdrive.agents.config import apply_overrides, load_config  # noqa: E402
 from mjdrive.agents.env_factory import make_training_env  # noqa: E402
 from mjdrive.agents.evaluate import evaluate  # noqa: E402
 from mjdrive.envs.fanout import fan_out  # noqa: E402

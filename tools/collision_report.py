@@ -26,7 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mjdrive.agents.common import split_task  # noqa: E402
+from mjdrive.agents.env_factory import split_task  # noqa: E402
 from mjdrive.agents.evaluate import load_agent  # noqa: E402
 from mjdrive.envs import make_env  # noqa: E402
 from mjdrive.sensors import wrap_angle  # noqa: E402

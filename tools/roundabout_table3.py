@@ -25,7 +25,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mjdrive.agents.common import load_checkpoint  # noqa: E402
+from mjdrive.agents.checkpoints import load_checkpoint  # noqa: E402
 from mjdrive.agents.ensemble import describe  # noqa: E402
 from mjdrive.agents.evaluate import evaluate, parse_task_kwargs  # noqa: E402
 from mjdrive.tasks.roundabout import DENSITIES  # noqa: E402

@@ -1,0 +1,57 @@
+"""Learner configs: YAML/JSON files, configs/ by name, and `a.b=value` overrides."""
+
+from __future__ import annotations
+
+import copy
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+CONFIG_DIR = Path(__file__).resolve().parent / "configs"
+
+
+def load_config(name_or_path: str | Path) -> dict[str, Any]:
+    """A config from a .yaml/.json file, or by name from agents/configs/ (e.g. "sac_camera84")."""
+    path = Path(name_or_path)
+    if not path.exists():
+        for suffix in (".yaml", ".json"):
+            if (CONFIG_DIR / f"{name_or_path}{suffix}").exists():
+                path = CONFIG_DIR / f"{name_or_path}{suffix}"
+                break
+        else:
+            names = sorted(p.stem for p in CONFIG_DIR.glob("*.yaml"))
+            raise ValueError(f"no config {str(name_or_path)!r}; give a file or one of: {', '.join(names)}")
+    text = path.read_text()
+    if path.suffix == ".json":
+        return json.loads(text)
+    return parse_yaml(text)
+
+
+def parse_yaml(text: str) -> Any:
+    """yaml.safe_load, except that 1e-4 is a float (YAML 1.1 reads it as a string; Adam then fails on it)."""
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        pass
+
+    Loader.add_implicit_resolver("tag:yaml.org,2002:float", SCIENTIFIC, list("-+0123456789."))
+    return yaml.load(text, Loader=Loader)  # a SafeLoader subclass: safe
+
+
+SCIENTIFIC = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")
+
+
+def apply_overrides(config: dict, pairs: list[str]) -> dict:
+    """`a.b=value` pairs (value parsed as YAML: numbers, booleans, lists) applied to a copy of `config`."""
+    config = copy.deepcopy(config)
+    for pair in pairs:
+        if "=" not in pair:
+            raise ValueError(f"override must be KEY=VALUE (dots for nesting), got {pair!r}")
+        key, value = pair.split("=", 1)
+        node = config
+        *parents, leaf = key.split(".")
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[leaf] = parse_yaml(value)
+    return config
