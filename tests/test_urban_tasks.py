@@ -70,13 +70,32 @@ def test_reward_is_speed_plus_arrival_and_the_scenario_follows_the_route():
 
 
 def test_a_driver_blind_to_traffic_collides_at_the_crossroad():
-    """Pure pursuit along the route at 80% of the speed limit, ignoring traffic: traffic with priority
-    hits it in some episodes (the -2 reward ends them)."""
-    outcomes = [drive("crossroad", seed)[1:] for seed in range(4)]
+    """The "always go" driver (the route at the speed limit, ignoring traffic) collides in some episodes
+    (the -2 reward ends them); results/urban/always_go.md has the rates over 100 episodes per scenario."""
+    outcomes = [drive("crossroad", seed, "always_go")[1:] for seed in range(4)]
     collisions = [(info, terms) for info, _, _, terms, terminated in outcomes if info["collision"]]
     assert collisions and len(collisions) < len(outcomes)
     for info, terms in collisions:
         assert terms["collision"] == -2.0 and not info["success"]
+
+
+def test_the_always_go_driver_keeps_the_speed_limit_on_an_empty_road():
+    env = make_env("urban", "merge", random=0, road_users={"car": 0})
+    act = make_policy("always_go", env, 0)
+    task = env.unwrapped.task
+    observation, info = env.reset(seed=0)
+    speeds, limits = [], []
+    while True:
+        observation, _, terminated, truncated, info = env.step(act(observation))
+        k = int(np.searchsorted(task.route_starts, task.route_s, side="right") - 1)
+        speeds.append(task.speed)
+        limits.append(task.road_map.lanes[task.route[k]].speed_limit)
+        if terminated or truncated:
+            break
+    assert info["success"] and not info["collision"]
+    speeds, limits = np.array(speeds), np.array(limits)
+    assert speeds.max() < 1.05 * limits.max()  # the speed controller overshoots by under 5%
+    assert np.all(np.abs(speeds[-20:] - limits[-20:]) < 0.5)  # at the main road's 50 km/h by the end
 
 
 def test_adversaries_are_the_nearest_road_users_to_the_relevant_point():

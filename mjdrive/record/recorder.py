@@ -139,9 +139,9 @@ def package_versions() -> dict[str, str]:
     """Versions of the packages that decide an episode's numbers (looked up once per process)."""
     from importlib import metadata
 
-    import mjdrive
+    from mjdrive.version import __version__
 
-    versions = {"mjdrive": mjdrive.__version__, "mujoco": mujoco.__version__, "numpy": np.__version__,
+    versions = {"mjdrive": __version__, "mujoco": mujoco.__version__, "numpy": np.__version__,
                 "python": platform.python_version()}
     for dist in ("dm-control", "foxglove-sdk"):
         try:

@@ -27,7 +27,7 @@ SPAWN_S = 8.0  # [m] along the lane
 
 # Road users of each map at its default traffic: keys are the composed map's piece names joined by "+".
 DEFAULT_COUNTS: dict[str, dict[str, int]] = {
-    "roundabout": {"car": 10, "motorcycle": 2},
+    "roundabout": {"car": 16, "motorcycle": 2},
     "overtaking_road": {"car": 10, "motorcycle": 2},
     "crossroad": {"car": 8, "motorcycle": 2},
     "merge_road": {"car": 10, "motorcycle": 2},
