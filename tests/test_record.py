@@ -325,13 +325,8 @@ def test_killed_writer_and_two_processes(tmp_path):
 
 def test_roundabout_traffic_is_logged_and_replays(tmp_path):
     """The real traffic of the densest roundabout, read through task.road_users(), replays bit for bit
-    (mocap poses of every road user included)."""
-    from mjdrive import suite
-
-    if "roundabout" not in suite.TASKS_BY_DOMAIN:
-        pytest.skip("no roundabout domain")
-    task = "d210" if "d210" in suite.TASKS_BY_DOMAIN["roundabout"] else suite.TASKS_BY_DOMAIN["roundabout"][-1]
-    env = RecordEpisodes(make_env("roundabout", task, time_limit=4.0), tmp_path)
+    (mocap poses of every road user included). d210 is a registered task: a missing one fails here."""
+    env = RecordEpisodes(make_env("roundabout", "d210", time_limit=4.0), tmp_path)
     _drive(env, 2, lambda observation: np.array([0.3, 0.0, 0.0], np.float32))
     env.close()
     path = env.recorder.paths[0]
