@@ -27,6 +27,7 @@ from mjdrive.world import PHYSICS_TIMESTEP
 CRUISE_ACTION = np.array([0.25, 0.0, 0.0])  # gentle throttle, straight ahead
 HOLD_ACTION = np.array([0.0, 0.0, 1.0])  # brake: the ego waits at its yield line, traffic flows around it
 ROUNDABOUT_LEVELS = ("d120", "d140", "d160", "d210")
+URBAN_TASKS = ("concatenated",)
 ROUNDS = 5  # interleaved measurement rounds per task (the best of each is kept)
 COMPARE_DT = 0.002  # [s] the physics step the default is compared with
 HIGHWAY_CARS = {"car": 4}  # road users of the roundabout run beside highway-env's roundabout-v0 (ego + 4 cars)
@@ -40,10 +41,11 @@ def _no_tick(label: str) -> None:
     """A `tick` that shows nothing."""
 
 
-def bench_parts(tasks: list[str], levels: list[str], highway: bool) -> int:
+def bench_parts(tasks: list[str], levels: list[str], highway: bool, urban: list[str] = ()) -> int:
     """Progress units of a `mjdrive bench` run (for the bar's total)."""
     highway = highway and bool(levels) and importlib.util.find_spec("highway_env") is not None
-    return len(tasks) * TASK_PARTS + len(levels) * ROUNDABOUT_PARTS + (HIGHWAY_PARTS if highway else 0)
+    return (len(tasks) * TASK_PARTS + (len(levels) + len(urban)) * ROUNDABOUT_PARTS
+            + (HIGHWAY_PARTS if highway else 0))
 
 
 def calls_per_second(step: Callable[[], None], seconds: float) -> float:
@@ -180,7 +182,14 @@ def bench_roundabout(level: str, seconds: float = 3.0, image_size: int = 84,
                      tick: Callable[[str], None] = _no_tick) -> dict[str, float]:
     """Raw physics, env features (with the traffic update's share of the time) and env camera throughput
     of one roundabout density, the ego braking at its yield line (`tick` after each of `ROUNDABOUT_PARTS`)."""
-    env = suite.load("roundabout", level, {"random": 0})
+    return bench_traffic_task("roundabout", level, seconds, image_size, tick)
+
+
+def bench_traffic_task(domain: str, task: str, seconds: float = 3.0, image_size: int = 84,
+                       tick: Callable[[str], None] = _no_tick) -> dict[str, float]:
+    """`bench_roundabout` for any task with traffic: the ego brakes at its start while the traffic flows."""
+    level, name = task, f"{domain}/{task}"
+    env = suite.load(domain, level, {"random": 0})
     env.reset()
     model, dt, n_sub = env.physics.model.ptr, env.physics.timestep(), env._n_sub_steps
     data = mujoco.MjData(model)
@@ -196,26 +205,26 @@ def bench_roundabout(level: str, seconds: float = 3.0, image_size: int = 84,
                 environment.reset()
         return go
 
-    env_2ms = suite.load("roundabout", level, {"random": 0, "physics_dt": COMPARE_DT})
+    env_2ms = suite.load(domain, level, {"random": 0, "physics_dt": COMPARE_DT})
     env_2ms.reset()
-    tick(f"roundabout/{level}: envs built")
+    tick(f"{name}: envs built")
     result = {"dt": dt, "n_sub": n_sub, "users": traffic.n, "decision": traffic.config.decision_period}
     # Interleaved short rounds, best of each: robust to other processes sharing the machine.
     raw, envs, envs_2ms = [], [], []
     for _ in range(ROUNDS):
         raw.append(calls_per_second(lambda: mujoco.mj_step(model, data, n_sub), seconds / ROUNDS) * n_sub)
-        tick(f"roundabout/{level}: raw")
+        tick(f"{name}: raw")
         envs.append(_timed_rate(step(env), seconds / ROUNDS, lambda: traffic.cpu_time))
-        tick(f"roundabout/{level}: env")
+        tick(f"{name}: env")
         envs_2ms.append(calls_per_second(step(env_2ms), seconds / ROUNDS))
-        tick(f"roundabout/{level}: env at {COMPARE_DT * 1e3:g} ms")
+        tick(f"{name}: env at {COMPARE_DT * 1e3:g} ms")
     result["raw_steps_per_s"] = max(raw)
     result["env_steps_per_s"], result["traffic_share"] = max(envs)
     result["env_2ms_steps_per_s"] = max(envs_2ms)
-    camera_env = suite.load("roundabout", level, {"random": 0, "observation": "camera", "image_size": image_size})
+    camera_env = suite.load(domain, level, {"random": 0, "observation": "camera", "image_size": image_size})
     camera_env.reset()
     result["camera_env_steps_per_s"] = calls_per_second(step(camera_env), seconds)
-    tick(f"roundabout/{level}: camera env")
+    tick(f"{name}: camera env")
     for camera in camera_env.task.cameras.values():
         camera.close()
     return result
@@ -261,33 +270,55 @@ def bench_highway_env(seconds: float = 3.0, tick: Callable[[str], None] = _no_ti
     return result
 
 
+TRAFFIC_HEADER = (
+    "| task | road users | raw mj_step [steps/s] | raw [sim-s/wall-s] | env features [steps/s] "
+    f"| env [sim-s/wall-s] | env/raw | env at {COMPARE_DT * 1e3:g} ms [sim-s/wall-s] "
+    f"| default / {COMPARE_DT * 1e3:g} ms | traffic share of step | traffic [ms/step] | env camera [steps/s] "
+    "| camera [sim-s/wall-s] |",
+    "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+)
+
+
+def _traffic_row(name: str, r: dict[str, float]) -> str:
+    """One row of TRAFFIC_HEADER's table from `bench_traffic_task`'s result."""
+    control_dt = r["dt"] * r["n_sub"]
+    raw_sim = r["raw_steps_per_s"] * r["dt"]
+    env_sim = r["env_steps_per_s"] * control_dt
+    env_2ms_sim = r["env_2ms_steps_per_s"] * control_dt
+    return (f"| {name} | {r['users']} | {r['raw_steps_per_s']:,.0f} | {raw_sim:.1f} "
+            f"| {r['env_steps_per_s']:,.0f} | {env_sim:.1f} | {env_sim / raw_sim:.0%} | {env_2ms_sim:.1f} "
+            f"| {env_sim / env_2ms_sim:.2f}x | {r['traffic_share']:.0%} "
+            f"| {1e3 * r['traffic_share'] / r['env_steps_per_s']:.2f} | {r['camera_env_steps_per_s']:,.0f} "
+            f"| {r['camera_env_steps_per_s'] * control_dt:.1f} |")
+
+
+def run_urban_benchmarks(tasks=URBAN_TASKS, seconds: float = 3.0, image_size: int = 84,
+                         tick: Callable[[str], None] = _no_tick) -> str:
+    """A markdown report: the urban tasks (study 002) at their default traffic, the ego braking at its start
+    while the traffic flows (`tick` after each of `ROUNDABOUT_PARTS` per task)."""
+    lines = [f"# mjdrive bench, urban ({platform.processor() or platform.machine()}, {mujoco.__version__=}, "
+             "one thread)", "", *TRAFFIC_HEADER]
+    r = {}
+    for task in tasks:
+        r = bench_traffic_task("urban", task, seconds, image_size, tick)
+        lines.append(_traffic_row(f"urban/{task}", r))
+    if r:
+        lines += ["", f"Urban: control 10 Hz ({r['n_sub']} physics steps of {r['dt'] * 1e3:g} ms), traffic poses "
+                  f"written every 0.02 s, traffic decisions every {r['decision']:.1f} s; the ego brakes at its start "
+                  f"while the traffic flows; camera = one {image_size}x{image_size} colour frame. Columns as in the "
+                  "roundabout table."]
+    return "\n".join(lines)
+
+
 def run_roundabout_benchmarks(levels=ROUNDABOUT_LEVELS, seconds: float = 3.0, image_size: int = 84,
                               highway: bool = True, tick: Callable[[str], None] = _no_tick) -> str:
     """A markdown report: every roundabout density, and highway-env's roundabout-v0 if installed (`tick`:
     progress, see `bench_roundabout`)."""
-    lines = [
-        f"# mjdrive bench, roundabout ({platform.processor() or platform.machine()}, {mujoco.__version__=}, "
-        "one thread)",
-        "",
-        "| task | road users | raw mj_step [steps/s] | raw [sim-s/wall-s] | env features [steps/s] "
-        f"| env [sim-s/wall-s] | env/raw | env at {COMPARE_DT * 1e3:g} ms [sim-s/wall-s] "
-        f"| default / {COMPARE_DT * 1e3:g} ms | traffic share of step | traffic [ms/step] | env camera [steps/s] "
-        "| camera [sim-s/wall-s] |",
-        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
-    ]
+    lines = [f"# mjdrive bench, roundabout ({platform.processor() or platform.machine()}, {mujoco.__version__=}, "
+             "one thread)", "", *TRAFFIC_HEADER]
     for level in levels:
         r = bench_roundabout(level, seconds, image_size, tick)
-        control_dt = r["dt"] * r["n_sub"]
-        raw_sim = r["raw_steps_per_s"] * r["dt"]
-        env_sim = r["env_steps_per_s"] * control_dt
-        env_2ms_sim = r["env_2ms_steps_per_s"] * control_dt
-        lines.append(
-            f"| roundabout/{level} | {r['users']} | {r['raw_steps_per_s']:,.0f} | {raw_sim:.1f} "
-            f"| {r['env_steps_per_s']:,.0f} | {env_sim:.1f} | {env_sim / raw_sim:.0%} | {env_2ms_sim:.1f} "
-            f"| {env_sim / env_2ms_sim:.2f}x | {r['traffic_share']:.0%} "
-            f"| {1e3 * r['traffic_share'] / r['env_steps_per_s']:.2f} | {r['camera_env_steps_per_s']:,.0f} "
-            f"| {r['camera_env_steps_per_s'] * control_dt:.1f} |"
-        )
+        lines.append(_traffic_row(f"roundabout/{level}", r))
     hw = bench_highway_env(seconds, tick) if highway else None
     if hw is not None:
         ours_sim = hw["ours_steps_per_s"] * hw["ours_control_dt"]

@@ -317,12 +317,12 @@ def cmd_logs(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    from mjdrive.bench import bench_parts, run_benchmarks, run_roundabout_benchmarks
+    from mjdrive.bench import bench_parts, run_benchmarks, run_roundabout_benchmarks, run_urban_benchmarks
     from mjdrive.bench_sensors import SENSOR_PARTS, run_sensor_benchmarks
     from mjdrive.progress import Progress
 
     parts = []
-    total = bench_parts(args.tasks, args.roundabout, args.highway) + SENSOR_PARTS * len(args.sensors)
+    total = bench_parts(args.tasks, args.roundabout, args.highway, args.urban) + SENSOR_PARTS * len(args.sensors)
     with Progress(total=total, desc="bench", unit="part") as bar:
         def tick(label: str) -> None:
             bar.set_postfix_str(label, refresh=False)
@@ -333,6 +333,8 @@ def cmd_bench(args) -> int:
         if args.roundabout:
             parts.append(run_roundabout_benchmarks(args.roundabout, seconds=args.seconds, highway=args.highway,
                                                    tick=tick))
+        if args.urban:
+            parts.append(run_urban_benchmarks(args.urban, seconds=args.seconds, tick=tick))
         if args.sensors:
             parts.append(run_sensor_benchmarks(args.sensors, seconds=args.seconds, tick=tick))
     report = "\n\n".join(parts)
@@ -460,6 +462,9 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--roundabout", nargs="*", default=["d120", "d140", "d160", "d210"], metavar="LEVEL",
                        choices=("d120", "d140", "d160", "d210"),
                        help="roundabout densities for the roundabout table (none: skip it)")
+    bench.add_argument("--urban", nargs="*", default=["concatenated"], metavar="TASK",
+                       choices=("roundabout", "lane_change", "crossroad", "merge", "concatenated"),
+                       help="urban tasks (study 002) for the urban table (none: skip it)")
     bench.add_argument("--highway", action=argparse.BooleanOptionalAction, default=True,
                        help="also run highway-env's roundabout-v0 when it is installed")
     bench.add_argument("--sensors", nargs="*", type=task_name, default=["roundabout/d120"], metavar="TASK",
