@@ -140,3 +140,69 @@ def test_copies_can_run_different_tasks_of_one_domain_each_as_its_single_env():
         BatchedEnv("roundabout", ["d120", "d160"], num_envs=2, backend="rollout", observation="features")
     with pytest.raises(ValueError, match="mix_tasks must be tasks of roundabout"):
         make_batched_env({"task": "roundabout/d120", "mix_tasks": ["waypoints/straight"]})
+
+
+def _single_env_trajectories(domain: str, task: str, actions: np.ndarray, seed: int, **kwargs) -> list[list]:
+    """Per copy i: (obs, reward, terminated, truncated, info) of each step of an independent single env reset
+    with `seed + i` and driven by `actions[:, i]`, reset without a seed after an episode end (as auto-reset)."""
+    runs = []
+    for i in range(actions.shape[1]):
+        env = make_env(domain, task, **kwargs)
+        env.reset(seed=seed + i)
+        steps = []
+        for action in actions[:, i]:
+            obs, reward, terminated, truncated, info = env.step(action)
+            steps.append((obs, reward, terminated, truncated, info))
+            if terminated or truncated:
+                steps[-1] = (*steps[-1][:4], {**info, "next_observation": env.reset()[0]})
+        env.close()
+        runs.append(steps)
+    return runs
+
+
+@pytest.mark.parametrize("backend", ["serial", "threads"])
+@pytest.mark.parametrize(("domain", "task", "kwargs"), [
+    ("roundabout", "d120", {"observation": "features", "time_limit": 3.0}),  # traffic; collisions end episodes
+    ("waypoints", "random_routes", {"time_limit": 2.0}),  # hard steering ends episodes by lane invasion
+])
+def test_trajectories_equal_independent_single_envs_bit_for_bit(domain, task, kwargs, backend):
+    """Three copies with their own actions: every observation, reward, termination, truncation and the
+    metrics of every step equal those of three single envs seeded seed + i, across auto-resets (both a
+    task end and a time limit happen inside the run)."""
+    steps, seed = 40, 4
+    mild = np.random.default_rng(0).uniform([0.3, -0.3, 0.0], [1.0, 0.3, 0.1], size=(steps, 2, 3))
+    hard = np.random.default_rng(1).uniform([0.8, 0.8, 0.0], [1.0, 1.0, 0.0], size=(steps, 1, 3))
+    actions = np.concatenate([mild[:, :1], hard, mild[:, 1:]], axis=1).astype(np.float32)
+    reference = _single_env_trajectories(domain, task, actions, seed, **kwargs)
+    env = BatchedEnv(domain, task, num_envs=3, nthread=2, backend=backend, **kwargs)
+    obs, _ = env.reset(seed=seed)
+    returns = np.zeros(3)
+    lengths = np.zeros(3, int)
+    ends = {"terminated": 0, "truncated": 0}
+    for t in range(steps):
+        obs, rewards, terms, truncs, info = env.step(actions[t])
+        for i in range(3):
+            single_obs, reward, terminated, truncated, single_info = reference[i][t]
+            assert (rewards[i], terms[i], truncs[i]) == (np.float32(reward), terminated, truncated), (t, i)
+            for key, value in single_obs.items():
+                np.testing.assert_array_equal(info["final_observation"][key][i], value, err_msg=f"{t} {i} {key}")
+            returns[i] += reward
+            lengths[i] += 1
+            if not (terminated or truncated):
+                assert info["final_info"][i] is None and not info["_final_observation"][i]
+                metrics = {**env.bases[i].task.info, "time_limit": False}
+                np.testing.assert_equal(metrics, single_info, err_msg=f"{t} {i}")
+                for key, value in single_obs.items():
+                    np.testing.assert_array_equal(obs[key][i], value)
+                continue
+            ends["terminated" if terminated else "truncated"] += 1
+            final = info["final_info"][i]
+            assert info["_final_observation"][i] and final["task"] == f"{domain}/{task}"
+            assert final["episode_length"] == lengths[i] and final["episode_return"] == returns[i]
+            next_observation = single_info.pop("next_observation")
+            np.testing.assert_equal({key: final[key] for key in single_info}, single_info, err_msg=f"{t} {i}")
+            for key, value in next_observation.items():  # the auto-reset episode's first observation
+                np.testing.assert_array_equal(obs[key][i], value, err_msg=f"{t} {i} {key} after reset")
+            returns[i], lengths[i] = 0.0, 0
+    assert ends["terminated"] >= 2 and ends["truncated"] >= 2, ends
+    env.close()
