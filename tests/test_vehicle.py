@@ -91,7 +91,9 @@ def test_braking_distance_from_50kmh(car):
     theory = v0**2 / (2 * mu * g)
     x, y, yaw = veh.pose(data)
     assert abs(veh.speed(data)) < 0.01
-    assert 0.0 < x / theory - 1 < 0.08, (x, theory)  # measured +5.7 ... +6.4% (the tyres slip, never lock)
+    # The published +5.7 ... +6.4% (README, results/physics_dt.md; the tyres slip, never lock) within 2 points;
+    # the SUV's +9.4% at 8 ms fails.
+    assert 0.04 < x / theory - 1 < 0.08, (x, theory)
     assert abs(y) < 0.05 and abs(yaw) < 0.01
     assert min(accel) > -1.3 * mu * g  # no impacts: the wheels do not lock, hop or chatter
 
@@ -118,7 +120,9 @@ def test_low_speed_circle_radius(car, steer):
     cx, cy, c = np.linalg.lstsq(a, (xy**2).sum(1), rcond=None)[0]
     radius = math.sqrt(c + cx**2 + cy**2)
     theory = p.wheelbase / math.tan(abs(steer) * p.max_steer)
-    assert abs(radius / theory - 1) < 0.01, (radius, theory)  # measured +0.01 ... +0.25%
+    # The published +0.01 ... +0.25% (README, results/physics_dt.md): never below the kinematic radius,
+    # at most 0.5% above it.
+    assert 0.0 < radius / theory - 1 < 0.005, (radius, theory)
     assert np.sign(veh.yaw_rate(data)) == np.sign(steer)
     assert veh.steering_angle(data) == pytest.approx(steer * p.max_steer, abs=0.01)
 
