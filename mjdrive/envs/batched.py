@@ -160,7 +160,7 @@ class BatchedEnv:
             final_obs.append(obs)
             if self.recorders is not None:
                 self.recorders[i].step(base.task, base.dm_env.physics, base.task.last_action, float(reward),
-                                       terminated=bool(term), truncated=bool(trunc))
+                                       terminated=bool(term), truncated=bool(trunc), observation=obs)
             if term or trunc:
                 final_info[i] = {**base.task.info, "time_limit": bool(trunc), "task": self.task_ids[i],
                                  "episode_return": float(self.episode_returns[i]),

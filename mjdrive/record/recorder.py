@@ -70,6 +70,7 @@ from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 from mjdrive.comfort import ComfortMeter
 from mjdrive.record import proto, scene
 from mjdrive.record.summary import comfort_fields
+from mjdrive.sensors import SENSORS
 
 FORMAT_VERSION = 1
 CAMERA_FRAME = "camera_front"
@@ -112,6 +113,15 @@ class RecordOptions:
             raise ValueError(f"camera_every must be >= 0, got {self.camera_every}")
         if self.live_port is not None and not 0 <= self.live_port <= 65535:
             raise ValueError(f"live_port must be in 0..65535, got {self.live_port}")
+
+
+def sensor_readings(observation: Any) -> dict[str, np.ndarray]:
+    """The extra sensors' readings (`mjdrive.sensors.SENSORS`: depth, segmentation, range) in an observation:
+    the entries of a mapping (gymnasium Dict observation, dm_env observation) by those names; {} for any
+    other observation (a flattened one, or an env without the `sensors` task keyword)."""
+    if not hasattr(observation, "keys"):
+        return {}
+    return {name: observation[name] for name in SENSORS if name in observation}
 
 
 def episode_filename(spec: EnvSpec, seed: int | None, episode: int, suffix: int = 0) -> str:
@@ -400,9 +410,10 @@ class EpisodeRecorder:
         self._channels.ego.log(fm.SceneUpdate(entities=[ego]), log_time=ns)
 
     def step(self, task, physics, action, reward: float, *, terminated: bool = False,
-             truncated: bool = False, sensors: dict[str, np.ndarray] | None = None) -> Path | None:
-        """Log one env step (the action applied, its reward, the state after it, the extra `sensors`
-        readings: depth, segmentation, range). Ends the episode when `terminated` or `truncated`, returning the
+             truncated: bool = False, observation: Any = None) -> Path | None:
+        """Log one env step (the action applied, its reward, the state after it, and the extra sensors'
+        readings found in `observation`: its `depth`, `segmentation` and `range` entries when it is a mapping
+        that has them, see `sensor_readings`). Ends the episode when `terminated` or `truncated`, returning the
         finished file's path; else None."""
         if self._writer is None:
             raise RuntimeError("EpisodeRecorder.step before begin()")
@@ -422,6 +433,7 @@ class EpisodeRecorder:
             self._scene_due.clear()
             self._log_scene(task, ns)
         self._log_state(task, data, c, (a0, a1, a2), ns)
+        sensors = sensor_readings(observation)
         if sensors:
             self._log_sensors(sensors, ns)
         if terminated or truncated:

@@ -2,7 +2,8 @@
 `RecordedEnvironment` for dm_control envs from `suite.load`, and `load(...)` = suite.load + recording.
 
 Both take the task's RNG state just before each reset, so `mjdrive replay` can rebuild the episode whether
-or not a seed was passed to reset.
+or not a seed was passed to reset, and both hand each step's observation to the recorder, which logs the
+extra sensors in it (task keyword `sensors`: /sensors/depth, /sensors/segmentation, /sensors/range).
 """
 
 from __future__ import annotations
@@ -47,10 +48,8 @@ class RecordEpisodes(gym.Wrapper):
         observation, reward, terminated, truncated, info = self.env.step(action)
         base = self.env.unwrapped
         if self.recorder.recording:
-            sensors = {k: observation[k] for k in ("depth", "segmentation", "range")
-                       if isinstance(observation, dict) and k in observation}
             path = self.recorder.step(base.task, base.dm_env.physics, base.task.last_action, reward,
-                                      terminated=terminated, truncated=truncated, sensors=sensors)
+                                      terminated=terminated, truncated=truncated, observation=observation)
             if path is not None:
                 info = {**info, "record_path": str(path)}
         return observation, reward, terminated, truncated, info
@@ -89,7 +88,8 @@ class RecordedEnvironment(dm_env.Environment):
             last = timestep.last()
             terminated = last and timestep.discount == 0.0
             self.recorder.step(self._env.task, self._env.physics, self._env.task.last_action,
-                               timestep.reward or 0.0, terminated=terminated, truncated=last and not terminated)
+                               timestep.reward or 0.0, terminated=terminated, truncated=last and not terminated,
+                               observation=timestep.observation)
         return timestep
 
     def action_spec(self):
