@@ -17,11 +17,32 @@ from mjdrive.run_folder import fresh_folder
 MAX_SEED = 2**32 - 1
 
 
+class DefaultsHelpFormatter(argparse.HelpFormatter):
+    """--help with each option's default: `(default: X)` after its help, lists written as on the command line
+    (none: `none`); left out where the help already says its default, for required options and for on/off
+    flags (off unless given). An option whose default is None says in its help what that means."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        said = "default:" in text or "by default" in text
+        if (said or action.required or default is None or default is argparse.SUPPRESS or not action.option_strings
+                or isinstance(action, argparse._StoreConstAction)):
+            return text
+        if isinstance(default, bool):  # --x/--no-x
+            shown = "on" if default else "off"
+        elif isinstance(default, (list, tuple)):
+            shown = " ".join(str(item) for item in default) or "none"
+        else:
+            shown = str(default)
+        return f"{text} (default: {shown.replace('%', '%%')})"
+
+
 class ArgumentParser(argparse.ArgumentParser):
     """argparse with one-line errors (exit status 2) and the defaults shown in --help."""
 
     def __init__(self, *args, **kwargs):
-        kwargs.setdefault("formatter_class", argparse.ArgumentDefaultsHelpFormatter)
+        kwargs.setdefault("formatter_class", DefaultsHelpFormatter)
         super().__init__(*args, **kwargs)
 
     def error(self, message: str):
@@ -397,7 +418,7 @@ def build_parser() -> argparse.ArgumentParser:
     listing = sub.add_parser("list", help="list tasks, tags and gymnasium ids; or one task's keywords")
     listing.add_argument("--kwargs", default=None, type=lambda text: text if text == "all" else task_name(text),
                          metavar="DOMAIN/TASK", help="print the task's keywords (type, default, unit, allowed "
-                         "values); 'all': every task's, as markdown")
+                         "values); 'all': every task's, as markdown (default: list the tasks)")
     listing.set_defaults(func=cmd_list)
 
     run = sub.add_parser("run", help="drive a task with a policy; write videos and a summary")
@@ -447,13 +468,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     replay = sub.add_parser("replay", help="re-simulate a logged episode and check it matches bit for bit")
     replay.add_argument("file", type=existing_file, help="an episode's .mcap file")
-    replay.add_argument("--video", default=None, metavar="OUT.mp4", help="also render the replay to a video")
+    replay.add_argument("--video", default=None, metavar="OUT.mp4",
+                        help="also render the replay to a video (default: none)")
     replay.set_defaults(func=cmd_replay)
 
     logs = sub.add_parser("logs", help="summarise a folder of episode logs as a markdown table")
     logs.add_argument("folder", type=existing_folder, help="a folder of .mcap episode files")
     logs.add_argument("--out", default=None,
-                      help="also write the table to this file (FILE.json: the episodes in the summary schema)")
+                      help="also write the table to this file (FILE.json: the episodes in the summary schema; "
+                      "default: print it only)")
     logs.set_defaults(func=cmd_logs)
 
     bench = sub.add_parser("bench", help="throughput: raw mj_step vs env steps, with and without camera")
@@ -471,24 +494,28 @@ def build_parser() -> argparse.ArgumentParser:
                        help="tasks for the extra sensors' cost table: depth, segmentation, range ring (none: skip)")
     bench.add_argument("--seconds", type=positive_float, default=3.0, help="wall time per measurement [s]")
     bench.add_argument("--image-size", type=int_at_least(16, 1024), default=128, help="camera side [px]")
-    bench.add_argument("--out", default=None, help="also write the report to this file")
+    bench.add_argument("--out", default=None, help="also write the report to this file (default: print it only)")
     bench.set_defaults(func=cmd_bench)
 
     train = sub.add_parser("train", help="train a learner (ppo, sac, dqn, trpo) on a task")
     train.add_argument("--algo", default="ppo", choices=("ppo", "sac", "dqn", "trpo"),
                        help="the learner (config: agents/configs/ALGO.yaml)")
-    train.add_argument("--config", default=None, help="config file, or name in agents/configs/ (e.g. ppo_camera)")
+    train.add_argument("--config", default=None, help="config file, or name in agents/configs/ (e.g. ppo_camera; "
+                       "default: agents/configs/ALGO.yaml)")
     train.add_argument("--task", default=None, type=task_name, help="DOMAIN/TASK (default: the config's)")
     train.add_argument("--task-kwarg", action="append", default=[], metavar="KEY=VALUE",
                        help="task keyword argument, e.g. observation=camera (repeatable)")
     train.add_argument("--steps", type=int_at_least(1), default=None, help="env steps (default: the config's)")
     train.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=None, help="seed (default: the config's)")
-    train.add_argument("--num-envs", type=int_at_least(1, 1024), default=None, help="env copies stepped together")
+    train.add_argument("--num-envs", type=int_at_least(1, 1024), default=None,
+                       help="env copies stepped together (default: the config's)")
     train.add_argument("--workers", type=int_at_least(0, 1024), default=None, metavar="N",
-                       help="step the copies in N worker processes (num_envs a multiple of N; 0: in this process)")
+                       help="step the copies in N worker processes (num_envs a multiple of N; 0: in this process; "
+                            "default: the config's)")
     train.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
                        help="step the copies in --workers Ray actors: a local Ray (no ADDRESS), 'auto' (the cluster "
-                            "of `ray start` on this machine) or HOST:PORT (pip install 'mjdrive[ray]')")
+                            "of `ray start` on this machine) or HOST:PORT (pip install 'mjdrive[ray]'; "
+                            "default: no Ray)")
     train.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                        help="config override, dots for nesting, e.g. algorithm.batch_size=128 (repeatable)")
     train.add_argument("--out", default=None, help="run folder (default: runs/ALGO_TASK_seedS)")
@@ -511,10 +538,10 @@ def build_parser() -> argparse.ArgumentParser:
                           help="run the episodes in N worker processes (0: in this process); same results at any N")
     evaluate.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
                           help="run the episodes as Ray tasks: a local Ray of --workers CPUs (no ADDRESS), 'auto' or "
-                               "HOST:PORT (pip install 'mjdrive[ray]')")
-    evaluate.add_argument("--out", default=None, help="write OUT.md and OUT.json")
+                               "HOST:PORT (pip install 'mjdrive[ray]'; default: no Ray)")
+    evaluate.add_argument("--out", default=None, help="write OUT.md and OUT.json (default: print the table only)")
     evaluate.add_argument("--record", action=argparse.BooleanOptionalAction, default=True,
-                          help="write one MCAP log per episode (default on)")
+                          help="write one MCAP log per episode")
     evaluate.add_argument("--record-dir", default=None,
                           help="where the logs go (default: OUT/ beside OUT.md, or runs/eval/CHECKPOINT/ without "
                                "--out); it must be new or empty")
@@ -528,7 +555,7 @@ def build_parser() -> argparse.ArgumentParser:
                           help="policy.pt or checkpoint files of runs on the same observation")
     ensemble.add_argument("--rule", default="min_pedal",
                           help="'mean' (the mean action) or 'min_pedal' (the smallest pedal with the mean steer, "
-                               "pedal actions; default)")
+                               "pedal actions)")
     ensemble.add_argument("--out", required=True, help="the ensemble checkpoint to write")
     ensemble.set_defaults(func=cmd_ensemble)
     return parser

@@ -201,3 +201,25 @@ def test_ppo_training_prints_no_rsl_rl_model_dump_and_explains_its_rounded_steps
     out, _ = capfd.readouterr()
     assert "Actor Model" not in out and "Resolved observation sets" not in out, out
     assert "PPO collects rollouts of 2 envs x 32 steps = 64: training for 64 env steps (asked 40)" in out
+
+
+def test_every_option_of_every_command_has_help_and_says_its_default():
+    import argparse
+
+    from mjdrive.cli import build_parser
+
+    parser = build_parser()
+    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+    assert set(commands) == {"list", "run", "drive", "replay", "logs", "bench", "train", "eval", "ensemble"}
+    for name, command in commands.items():
+        text = command.format_help()
+        assert "(default: None)" not in text and "(default: [])" not in text, name
+        formatter = command._get_formatter()
+        for action in command._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            assert action.help, (name, action.dest)
+            shown = formatter._get_help_string(action)
+            flag = isinstance(action, argparse._StoreConstAction)  # off unless given
+            if action.option_strings and not (action.required or flag):
+                assert "default" in shown, (name, action.option_strings, shown)
