@@ -68,7 +68,7 @@ def bench_task(name: str, seconds: float = 3.0, image_size: int = 128,
     domain, task = name.split("/")
     env = suite.load(domain, task, {"random": 0})
     model, dt = env.physics.model.ptr, env.physics.timestep()
-    n_sub = env._n_sub_steps
+    n_sub = env.n_sub_steps
     data = mujoco.MjData(model)
     env.reset()
     data.qpos[:], data.qvel[:], data.ctrl[:] = env.physics.data.qpos, env.physics.data.qvel, env.physics.data.ctrl
@@ -191,7 +191,7 @@ def bench_traffic_task(domain: str, task: str, seconds: float = 3.0, image_size:
     level, name = task, f"{domain}/{task}"
     env = suite.load(domain, level, {"random": 0})
     env.reset()
-    model, dt, n_sub = env.physics.model.ptr, env.physics.timestep(), env._n_sub_steps
+    model, dt, n_sub = env.physics.model.ptr, env.physics.timestep(), env.n_sub_steps
     data = mujoco.MjData(model)
     src = env.physics.data
     for name in ("qpos", "qvel", "ctrl", "mocap_pos", "mocap_quat"):

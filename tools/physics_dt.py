@@ -252,7 +252,7 @@ def stability(dt: float, physics_steps: int) -> dict[str, float]:
     from mjdrive.control.autopilot import Autopilot
 
     env = load("roundabout", "d210", dt)
-    n_sub = env._n_sub_steps
+    n_sub = env.n_sub_steps
     pilot = Autopilot(env.task, n_sub * dt)
     steps, errors, episodes, collisions = 0, 0, 0, 0
     env.reset()
@@ -293,7 +293,7 @@ def throughput_section(dts: list[float], seconds: float, rounds: int) -> list[st
                                               "roundabout/d210": ("roundabout", "d210", hold)}.items():
             env = load(domain, task, dt)
             env.reset()
-            n_sub = env._n_sub_steps
+            n_sub = env.n_sub_steps
             model = env.physics.model.ptr
             data = mujoco.MjData(model)
             src = env.physics.data
@@ -374,7 +374,7 @@ def profile(dt: float, steps: int) -> dict[str, float]:
     data = mujoco.MjData(model)
     start = time.perf_counter()
     for _ in range(steps):
-        mujoco.mj_step(model, data, env._n_sub_steps)
+        mujoco.mj_step(model, data, env.n_sub_steps)
     raw = time.perf_counter() - start
     ms = {key: 1e3 * value / steps for key, value in spent.items()}
     out = {"env step": 1e3 * total / steps, "raw mj_step of a control step": 1e3 * raw / steps}

@@ -7,15 +7,16 @@
 
 Each copy is a `DrivingGymEnv` (own MjModel/MjData, own task and random stream). `task` may be a list of
 tasks of one domain (e.g. the roundabout's four densities): copy i runs `task[i % len(task)]`; their observation
-and action spaces must match. A step maps the actions,
-runs every task's `before_step`, advances all physics in ONE call (`backend`), then runs every task's
-`after_step`, reward, termination and observation -- the same sequence as `dm_control`'s
-`Environment.step`, so the "threads" and "serial" backends give bit-identical episodes to the single env.
+and action spaces must match. A step maps the actions, runs every copy's `DrivingGymEnv.before_physics`, advances
+all physics in ONE call (`backend`), then runs every copy's `DrivingGymEnv.after_physics` -- the two halves of
+the single env's `step` (`DrivingEnvironment.step`), so the "threads" and "serial" backends give bit-identical
+episodes to the single env.
 
 Backends for the physics call:
   "serial":  `mj_step` on each copy in turn (reference).
   "threads": `mj_step` on each copy in a thread pool of `nthread` (MuJoCo releases the GIL in `mj_step`).
-A task's `Physics.substep_callback` (the roundabout's traffic) runs between chunks as in `Physics.step`.
+A task's `Physics.substep_callback` (the roundabout's traffic) runs between chunks as in `Physics.advance`
+(both through `mjdrive.tasks.base.step_in_chunks`).
   "rollout": `mujoco.rollout` over all copies (state in/out as arrays, ctrl and mocap as controls). The state
              is written back with `mj_setState` + `mj_forward`, so contacts are those of the final state and
              the solver warm start is not carried over: close to, but not bit-identical with, the others.
@@ -40,6 +41,7 @@ import numpy as np
 
 from mjdrive.envs.gym_env import DrivingGymEnv, make_env
 from mjdrive.record.recorder import EnvSpec, EpisodeRecorder
+from mjdrive.tasks.base import step_in_chunks
 
 BACKENDS = ("serial", "threads", "rollout")
 _CONTROL_SPEC = (mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_MOCAP_POS
@@ -101,8 +103,8 @@ class BatchedEnv:
         self.wrapped_actions = isinstance(self.envs[0], gym.ActionWrapper)  # a table or "pedal"
         dm = self.bases[0].dm_env
         self.control_timestep = float(dm.control_timestep())  # [s]
-        self.n_sub_steps = int(dm._n_sub_steps)
-        self.max_episode_steps = int(np.ceil(dm._step_limit)) if np.isfinite(dm._step_limit) else None
+        self.n_sub_steps = dm.n_sub_steps
+        self.max_episode_steps = dm.max_episode_steps
         self._models = [b.dm_env.physics.model.ptr for b in self.bases]
         self._datas = [b.dm_env.physics.data.ptr for b in self.bases]
         self._pool = ThreadPoolExecutor(self.nthread) if backend == "threads" and self.nthread > 1 else None
@@ -147,13 +149,12 @@ class BatchedEnv:
         rewards = np.zeros(n, np.float32)
         terminated, truncated = np.zeros(n, bool), np.zeros(n, bool)
         for i, base in enumerate(self.bases):
-            base.task.before_step(self._command(i, actions[i]), base.dm_env.physics)
-        warnings_before = [d.warning.number.copy() for d in self._datas]
-        self._step_physics()
+            base.before_physics(self._command(i, actions[i]))
+        step_in_chunks([base.dm_env.physics for base in self.bases], self.n_sub_steps, self._step_all)
         final_obs: list[dict[str, np.ndarray]] = []
         final_info: list[dict | None] = [None] * n
         for i, base in enumerate(self.bases):
-            obs, reward, term, trunc = self._after_step(base, self._datas[i], warnings_before[i])
+            obs, reward, term, trunc, step_info = base.after_physics()
             rewards[i], terminated[i], truncated[i] = reward, term, trunc
             self.episode_returns[i] += reward
             self.episode_lengths[i] += 1
@@ -162,7 +163,7 @@ class BatchedEnv:
                 self.recorders[i].step(base.task, base.dm_env.physics, base.task.last_action, float(reward),
                                        terminated=bool(term), truncated=bool(trunc), observation=obs)
             if term or trunc:
-                final_info[i] = {**base.task.info, "time_limit": bool(trunc), "task": self.task_ids[i],
+                final_info[i] = {**step_info, "task": self.task_ids[i],
                                  "episode_return": float(self.episode_returns[i]),
                                  "episode_length": int(self.episode_lengths[i])}
                 obs, _ = self._reset_copy(i)
@@ -201,33 +202,9 @@ class BatchedEnv:
         self.recorders[i].begin(base.task, base.dm_env.physics, seed=seed, rng_state=rng_state)
         return obs, info
 
-    def _command(self, i: int, action) -> np.ndarray:
+    def _command(self, i: int, action):
         """The (throttle, steer, brake) command of copy i: through its action wrapper, if any."""
-        env = self.envs[i]
-        command = env.action(action) if self.wrapped_actions else np.asarray(action, np.float64)
-        command = np.asarray(command, np.float64)
-        if not np.all(np.isfinite(command)):
-            raise ValueError(f"action contains NaN or inf: {action}")
-        return command
-
-    def _step_physics(self) -> None:
-        """Advance every copy by one control period. A task's `Physics.substep_callback` (e.g. the
-        roundabout's traffic) runs after each chunk of `substep_interval` steps, as in `Physics.step`."""
-        physics = [base.dm_env.physics for base in self.bases]
-        callbacks = [p.substep_callback for p in physics]
-        if not any(callbacks):
-            self._step_all(self.n_sub_steps)
-            return
-        chunk = max(1, int(physics[0].substep_interval))
-        dt = float(self._models[0].opt.timestep)  # [s]
-        done = 0
-        while done < self.n_sub_steps:
-            n = min(chunk, self.n_sub_steps - done)
-            self._step_all(n)
-            for p, callback in zip(physics, callbacks, strict=True):
-                if callback is not None:
-                    callback(p, n * dt)
-            done += n
+        return self.envs[i].action(action) if self.wrapped_actions else action
 
     def _step_all(self, n_sub: int) -> None:
         """`n_sub` physics steps of every copy in one call of the backend."""
@@ -250,31 +227,6 @@ class BatchedEnv:
         else:
             for m, d in zip(self._models, self._datas, strict=True):
                 mujoco.mj_step(m, d, n_sub)
-
-    @staticmethod
-    def _after_step(base: DrivingGymEnv, data: mujoco.MjData, warnings_before: np.ndarray):
-        """The rest of dm_control's `Environment.step` (and DrivingEnvironment's physics-error handling)."""
-        dm, task = base.dm_env, base.task
-        physics = dm.physics
-        new = data.warning.number > warnings_before
-        if new.any() or not np.all(np.isfinite(data.qpos)):
-            names = [name for name, flag in zip(mujoco.mjtWarning.__members__, new, strict=False) if flag]
-            task.info["physics_error"] = f"physics state is invalid ({', '.join(names) or 'non-finite qpos'})"
-            task.info.update(task.comfort_metrics())
-            dm._reset_next_step = True
-            return dict(dm._last_observation), 0.0, True, False
-        task.after_step(physics)
-        reward = float(task.get_reward(physics) or 0.0)
-        observation = task.get_observation(physics)
-        dm._step_count += 1
-        discount = 1.0 if dm._step_count >= dm._step_limit else task.get_termination(physics)
-        dm._last_observation = observation
-        dm.end_step_comfort(discount is not None)
-        if discount is None:
-            return dict(observation), reward, False, False
-        dm._reset_next_step = True
-        terminated = discount == 0.0
-        return dict(observation), reward, terminated, not terminated
 
     def _stack(self, observations: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
         return {key: np.stack([obs[key] for obs in observations]) for key in self.single_observation_space}

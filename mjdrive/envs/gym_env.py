@@ -117,10 +117,28 @@ class DrivingGymEnv(gym.Env):
         return dict(timestep.observation), dict(self.task.info)
 
     def step(self, action):
+        return self._gym_step(self.dm_env.step(self.command(action)))
+
+    # The batched env (mjdrive.envs.batched) steps its copies' physics together, between these halves of
+    # `step` (after an episode's end it resets the copy instead of stepping it).
+    def before_physics(self, action) -> None:
+        """First half of `step`: the task applies the (throttle, steer, brake) `action`."""
+        self.dm_env.before_physics(self.command(action))
+
+    def after_physics(self):
+        """Second half of `step` once the physics advanced one control period: (obs, reward, terminated,
+        truncated, info) as `step` returns them."""
+        return self._gym_step(self.dm_env.after_physics())
+
+    @staticmethod
+    def command(action) -> np.ndarray:
+        """`action` as a float64 (throttle, steer, brake) array; NaN or inf raise."""
         action = np.asarray(action, dtype=np.float64)
         if not np.all(np.isfinite(action)):
             raise ValueError(f"action contains NaN or inf: {action}")
-        timestep = self.dm_env.step(action)
+        return action
+
+    def _gym_step(self, timestep: dm_env.TimeStep):
         info = dict(self.task.info)
         terminated = timestep.step_type == dm_env.StepType.LAST and timestep.discount == 0.0
         truncated = timestep.step_type == dm_env.StepType.LAST and not terminated

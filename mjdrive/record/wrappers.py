@@ -81,7 +81,7 @@ class RecordedEnvironment(dm_env.Environment):
         return timestep
 
     def step(self, action) -> dm_env.TimeStep:
-        if getattr(self._env, "_reset_next_step", False):
+        if getattr(self._env, "episode_over", False):
             return self.reset()
         timestep = self._env.step(action)
         if self.recorder.recording:

@@ -5,7 +5,7 @@ an exception."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -123,6 +123,27 @@ class RoadUsers:
 NO_ROAD_USERS = RoadUsers((), np.zeros((0, 3)), np.zeros((0, 3)))
 
 
+def step_in_chunks(physics: Sequence[Physics], nstep: int, step_all: Callable[[int], None]) -> None:
+    """Advance every one of `physics` (copies of one model) by `nstep` physics steps with `step_all(n)` (which
+    steps them all by n): in one call without a `substep_callback`, else in chunks of `substep_interval` steps
+    with each copy's callback after each chunk (given the chunk's duration [s]). `Physics.advance` steps one
+    copy this way, the batched env many at once."""
+    callbacks = [p.substep_callback for p in physics]
+    if not any(callbacks):
+        step_all(nstep)
+        return
+    chunk = max(1, int(physics[0].substep_interval))
+    dt = float(physics[0].raw_model.opt.timestep)  # [s]
+    done = 0
+    while done < nstep:
+        n = min(chunk, nstep - done)
+        step_all(n)
+        for p, callback in zip(physics, callbacks, strict=True):
+            if callback is not None:
+                callback(p, n * dt)
+        done += n
+
+
 class Physics(dm_mujoco.Physics):
     """dm_control Physics; `raw_model`/`raw_data` are the mujoco structs used on the hot path.
 
@@ -135,20 +156,14 @@ class Physics(dm_mujoco.Physics):
     substep_interval: int = 10  # physics steps per callback
 
     def step(self, nstep: int = 1) -> None:
-        callback = self.substep_callback
-        if callback is None:
-            super().step(nstep)
-            return
-        model, data = self.model.ptr, self.data.ptr
-        chunk = max(1, int(self.substep_interval))
-        dt = float(model.opt.timestep)
         with self.check_invalid_state():
-            done = 0
-            while done < nstep:
-                n = min(chunk, nstep - done)
-                mujoco.mj_step(model, data, n)
-                done += n
-                callback(self, n * dt)
+            self.advance(nstep)
+
+    def advance(self, nstep: int = 1) -> None:
+        """`nstep` physics steps (with the substep callback), without dm_control's invalid-state check:
+        DrivingEnvironment.after_physics checks the warnings itself."""
+        model, data = self.raw_model, self.raw_data
+        step_in_chunks((self,), nstep, lambda n: mujoco.mj_step(model, data, n))
 
     @property
     def raw_model(self) -> mujoco.MjModel:
@@ -295,17 +310,39 @@ class DrivingEnvironment(control.Environment):
     """dm_control Environment whose episode ends (discount 0, `info["physics_error"]`) when the
     simulation becomes unstable, instead of raising and killing a training run. It samples the task's
     comfort meter after every reset and step, and puts the comfort metrics into `info` at the episode's
-    last step (whatever ends it: the task, the time limit or a physics error)."""
+    last step (whatever ends it: the task, the time limit or a physics error).
+
+    A control step is `before_physics(action)`, `physics.advance(n_sub_steps)`, `after_physics()`: `step`
+    runs the three, the batched env (`mjdrive.envs.batched`) runs the halves around one physics call for
+    all its copies, so both step a task the same way."""
 
     def __init__(self, physics: Physics, task: DrivingTask, **kwargs):
         kwargs.setdefault("legacy_step", False)
+        if kwargs["legacy_step"]:
+            raise ValueError("DrivingEnvironment steps with mj_step only (legacy_step=False)")
         super().__init__(physics, task, **kwargs)
         self._last_observation = None
+        self._warnings_before = np.zeros_like(physics.raw_data.warning.number)
         task.control_dt = self.control_timestep()  # [s] the comfort samples' period
 
     @property
     def info(self) -> dict[str, Any]:
         return self.task.info
+
+    @property
+    def n_sub_steps(self) -> int:
+        """Physics steps per control step."""
+        return self._n_sub_steps
+
+    @property
+    def max_episode_steps(self) -> int | None:
+        """Control steps until the time limit ends an episode (None without a limit)."""
+        return math.ceil(self._step_limit) if math.isfinite(self._step_limit) else None
+
+    @property
+    def episode_over(self) -> bool:
+        """The last step ended the episode (or none has begun): the next `step` resets."""
+        return self._reset_next_step
 
     def close(self) -> None:
         """Free the task's camera renderers (dm_env's close frees nothing)."""
@@ -321,20 +358,50 @@ class DrivingEnvironment(control.Environment):
     def step(self, action) -> dm_env.TimeStep:
         if self._reset_next_step:
             return self.reset()
-        try:
-            timestep = super().step(action)
-        except control.PhysicsError as error:
+        self.before_physics(action)
+        self.physics.advance(self._n_sub_steps)
+        return self.after_physics()
+
+    def before_physics(self, action) -> None:
+        """First half of a control step: the task applies `action`; the physics' warning counts are kept to
+        tell a blow-up in `after_physics`."""
+        self._task.before_step(action, self._physics)
+        np.copyto(self._warnings_before, self._physics.raw_data.warning.number)
+
+    def after_physics(self) -> dm_env.TimeStep:
+        """Second half of a control step, once the physics advanced `n_sub_steps`: the task's `after_step`,
+        reward, observation and termination (as dm_control's `Environment.step`), the comfort sample; a new
+        MuJoCo warning or a non-finite qpos ends the episode instead (`info["physics_error"]`, discount 0,
+        the last observation again)."""
+        data = self._physics.raw_data
+        new = data.warning.number > self._warnings_before
+        if new.any() or not np.all(np.isfinite(data.qpos)):
+            names = [name for name, flag in zip(mujoco.mjtWarning.__members__, new, strict=False) if flag]
             self._reset_next_step = True
-            self.task.info["physics_error"] = str(error)
+            self.task.info["physics_error"] = f"physics state is invalid ({', '.join(names) or 'non-finite qpos'})"
             self.task.info.update(self.task.comfort_metrics())
             return dm_env.TimeStep(dm_env.StepType.LAST, 0.0, 0.0, self._last_observation)
-        self._last_observation = timestep.observation
-        self.end_step_comfort(timestep.last())
-        return timestep
+        self._task.after_step(self._physics)
+        reward = self._task.get_reward(self._physics)
+        observation = self._task.get_observation(self._physics)
+        if self._flat_observation:
+            observation = control.flatten_observation(observation)
+        self._step_count += 1
+        if self._step_count >= self._step_limit:
+            discount = 1.0
+        else:
+            discount = self._task.get_termination(self._physics)
+        self._last_observation = observation
+        last = discount is not None
+        self.end_step_comfort(last)
+        if last:
+            self._reset_next_step = True
+            return dm_env.TimeStep(dm_env.StepType.LAST, reward, discount, observation)
+        return dm_env.TimeStep(dm_env.StepType.MID, reward, 1.0, observation)
 
     def end_step_comfort(self, last: bool) -> None:
         """After a control step: sample the task's comfort meter; at the episode's last step put the comfort
-        metrics into `info` (also called by the batched env, which steps the physics itself)."""
+        metrics into `info`."""
         self.task.sample_comfort(self.physics.raw_data)
         if last:
             self.task.info.update(self.task.comfort_metrics())
