@@ -91,7 +91,7 @@ def test_braking_distance_from_50kmh(car):
     theory = v0**2 / (2 * mu * g)
     x, y, yaw = veh.pose(data)
     assert abs(veh.speed(data)) < 0.01
-    # The published +5.7 ... +6.4% (README, results/physics_dt.md; the tyres slip, never lock) within 2 points;
+    # The published +5.7 ... +6.4% (docs/vehicles.md, results/physics_dt.md; the tyres slip, never lock) within 2 points;
     # the SUV's +9.4% at 8 ms fails.
     assert 0.04 < x / theory - 1 < 0.08, (x, theory)
     assert abs(y) < 0.05 and abs(yaw) < 0.01
@@ -120,7 +120,7 @@ def test_low_speed_circle_radius(car, steer):
     cx, cy, c = np.linalg.lstsq(a, (xy**2).sum(1), rcond=None)[0]
     radius = math.sqrt(c + cx**2 + cy**2)
     theory = p.wheelbase / math.tan(abs(steer) * p.max_steer)
-    # The published +0.01 ... +0.25% (README, results/physics_dt.md): never below the kinematic radius,
+    # The published +0.01 ... +0.25% (docs/vehicles.md, results/physics_dt.md): never below the kinematic radius,
     # at most 0.5% above it.
     assert 0.0 < radius / theory - 1 < 0.005, (radius, theory)
     assert np.sign(veh.yaw_rate(data)) == np.sign(steer)
