@@ -17,18 +17,6 @@ import numpy as np
 from mjdrive.roads import RoadMap
 
 
-def footprint(x: float, y: float, yaw: float, length: float, width: float) -> np.ndarray:
-    """The four corners (4,2) [m] of a vehicle's rectangle: front-left, front-right, rear-right, rear-left."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    local = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * (0.5 * length, 0.5 * width)
-    return np.column_stack([x + c * local[:, 0] - s * local[:, 1], y + s * local[:, 0] + c * local[:, 1]])
-
-
-def wrap_angle(angle):
-    """Wrap [rad] to [-pi, pi)."""
-    return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
-
-
 class CollisionSensor:
     """Flags any contact between an ego geom and a geom that is not the ground (the road surface).
 

@@ -15,6 +15,7 @@ import numpy as np
 
 from mjdrive.assets import XML_DIR
 from mjdrive.roads import Marking, RoadMap
+from mjdrive.roads.geometry import box_points
 from mjdrive.vehicle import add_vehicle
 
 PHYSICS_TIMESTEP = 0.005  # [s] chosen by measurement: results/physics_dt.md
@@ -215,10 +216,8 @@ def _add_buildings(spec: mujoco.MjSpec, road_map: RoadMap, rng: np.random.Genera
     half = np.array([5.0, 5.0])  # [m] footprint half size
     # Reject a box if any of its corners or its centre is on a road (with a 1 m margin).
     offsets = np.array([[sx, sy] for sx in (-1, 0, 1) for sy in (-1, 0, 1)]) * (half + 1.0)
-    cos, sin = np.cos(headings)[:, None], np.sin(headings)[:, None]
-    px = centres[:, None, 0] + cos * offsets[None, :, 0] - sin * offsets[None, :, 1]
-    py = centres[:, None, 1] + sin * offsets[None, :, 0] + cos * offsets[None, :, 1]
-    on_road = road_map.on_road(np.stack([px, py], -1).reshape(-1, 2)).reshape(len(centres), -1).any(1)
+    points = box_points(centres, headings, offsets).reshape(-1, 2)
+    on_road = road_map.on_road(points).reshape(len(centres), -1).any(1)
     kept: list[np.ndarray] = []
     for centre, heading, blocked in zip(centres, headings, on_road, strict=True):
         if blocked or any(np.linalg.norm(centre - k) < 2 * half[0] + 1.0 for k in kept):

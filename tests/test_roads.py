@@ -6,12 +6,7 @@ import numpy as np
 import pytest
 
 from mjdrive import roads
-from mjdrive.roads import Lane, Marking, Path, RoadMap
-
-
-def _wrap(a):
-    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
-
+from mjdrive.roads import Lane, Marking, Path, RoadMap, wrap_angle
 
 # --- Lane geometry ----------------------------------------------------------------------------------------
 LANES = {
@@ -49,7 +44,7 @@ def test_arc_heading_and_curvature(sign):
     lane = Lane(Path((5.0, 5.0), h0).arc(radius, sign * 2.0).sample())
     assert lane.length == pytest.approx(radius * 2.0, rel=1e-4)
     s = np.linspace(0, lane.length, 97)
-    np.testing.assert_allclose(_wrap(lane.heading(s) - (h0 + sign * s / radius)), 0, atol=1e-4)
+    np.testing.assert_allclose(wrap_angle(lane.heading(s) - (h0 + sign * s / radius)), 0, atol=1e-4)
     np.testing.assert_allclose(lane.curvature(s), sign / radius, rtol=1e-4)
     # the centre is at distance R from every lane point
     centre = np.array([5.0, 5.0]) + sign * radius * np.array([-math.sin(h0), math.cos(h0)])
@@ -92,7 +87,7 @@ def test_successors_continue_their_predecessors(name):
     for a, b in pairs:
         la, lb = rm.lanes[a], rm.lanes[b]
         assert np.hypot(*(la.centre[-1] - lb.centre[0])) < 0.05, (la.name, lb.name)
-        assert abs(_wrap(la.heading(la.length) - lb.heading(0.0))) < 1e-3, (la.name, lb.name)
+        assert abs(wrap_angle(la.heading(la.length) - lb.heading(0.0))) < 1e-3, (la.name, lb.name)
         # the strips join too: edges meet at the joint
         assert np.hypot(*(la.left_edge()[-1] - lb.left_edge()[0])) < 0.05
     for lane in rm.lanes:
@@ -112,7 +107,7 @@ def test_neighbours_are_symmetric_parallel_and_one_width_apart(name):
         s = np.linspace(0.1, 0.9, 5) * lj.length
         si, di = li.local_coordinates(lj.position(s))
         np.testing.assert_allclose(di, -(li.width + lj.width) / 2, atol=0.02)
-        np.testing.assert_allclose(_wrap(li.heading(si) - lj.heading(s)), 0, atol=0.02)
+        np.testing.assert_allclose(wrap_angle(li.heading(si) - lj.heading(s)), 0, atol=0.02)
 
 
 def test_junction_lane_names_and_turns():
@@ -121,7 +116,7 @@ def test_junction_lane_names_and_turns():
     for name, turn in turns.items():
         lane = rm.lanes[rm.lane_id(name)]
         assert lane.in_junction
-        assert _wrap(lane.heading(lane.length) - lane.heading(0.0)) == pytest.approx(turn, abs=1e-3)
+        assert wrap_angle(lane.heading(lane.length) - lane.heading(0.0)) == pytest.approx(turn, abs=1e-3)
         assert rm.lane_id(name) in rm.successors[rm.lane_id(name.split("->")[0] + "_in_0")]
         assert rm.lane_id(name.split("->")[1][:-2] + "_out_0") in rm.successors[rm.lane_id(name)]
     s_in = rm.lanes[rm.lane_id("S_in_0")]
@@ -200,7 +195,7 @@ def test_waypoints_are_evenly_spaced_along_the_route(spacing):
         steps = np.hypot(*np.diff(points, axis=0).T)
         np.testing.assert_allclose(steps, spacing, rtol=0.01)
         direction = np.arctan2(*np.diff(points, axis=0)[:, ::-1].T)
-        assert np.abs(_wrap(direction - headings[:-1])).max() < spacing / 10
+        assert np.abs(wrap_angle(direction - headings[:-1])).max() < spacing / 10
         start = rm.lanes[route[0]].centre[0]
         end = rm.lanes[route[-1]].centre[-1]
         assert points[0] == pytest.approx(start) and np.hypot(*(points[-1] - end)) < spacing
@@ -358,7 +353,7 @@ def test_crafted_routes_are_four_disjoint_routes_of_the_right_shape():
     for name, route in routes.items():
         _assert_connected(rm, route)
         points, headings = rm.waypoints(route)
-        turn[name] = float(np.sum(_wrap(np.diff(np.unwrap(headings)))))
+        turn[name] = float(np.sum(wrap_angle(np.diff(np.unwrap(headings)))))
     assert turn["left_turn"] == pytest.approx(math.pi / 2, abs=0.05)
     assert turn["soft_left"] == pytest.approx(math.pi / 4, abs=0.05)
     assert turn["soft_right"] == pytest.approx(-math.pi / 4, abs=0.05)

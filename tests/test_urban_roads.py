@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from mjdrive import roads, world
-from mjdrive.roads import Marking
+from mjdrive.roads import Marking, wrap_angle
 from mjdrive.roads.conflicts import CROSSING, MERGE, TIE
 
 URBAN = roads.urban_route()
@@ -17,10 +17,6 @@ URBAN = roads.urban_route()
 
 def _names(rm, ids):
     return [rm.lanes[i].name for i in ids]
-
-
-def _wrap(a):
-    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 # --- ports and composition --------------------------------------------------------------------------------
@@ -33,11 +29,11 @@ def test_exit_port_of_each_piece_is_the_entry_port_of_the_next():
     for prev, nxt in zip(pieces[:-1], pieces[1:], strict=True):
         out, into = prev.exit_port, nxt.entry_port
         assert abs(out.x - into.x) < 1e-9 and abs(out.y - into.y) < 1e-9
-        assert abs(_wrap(out.heading - into.heading)) < 1e-9
+        assert abs(wrap_angle(out.heading - into.heading)) < 1e-9
         for a, b in [*zip(out.lanes, into.lanes, strict=True), *zip(into.reverse, out.reverse, strict=True)]:
             assert b in rm.successors[a]
             np.testing.assert_allclose(rm.lanes[a].centre[-1], rm.lanes[b].centre[0], atol=1e-9)
-            assert abs(_wrap(rm.lanes[a].vertex_heading[-1] - rm.lanes[b].vertex_heading[0])) < 1e-6
+            assert abs(wrap_angle(rm.lanes[a].vertex_heading[-1] - rm.lanes[b].vertex_heading[0])) < 1e-6
 
 
 def test_port_lanes_lie_beside_the_reference_point():
@@ -132,7 +128,7 @@ def test_crossroad_minor_approach_has_left_straight_and_right_successors():
         turns = {}
         for c in rm.successors[approach]:
             lane = rm.lanes[c]
-            turns[lane.name] = float(_wrap(lane.vertex_heading[-1] - lane.vertex_heading[0]))
+            turns[lane.name] = float(wrap_angle(lane.vertex_heading[-1] - lane.vertex_heading[0]))
             (nxt,) = rm.successors[c]
             assert rm.lanes[nxt].name == lane.name.split("->")[1][:-2] + "_out_0"
         assert set(turns) == {"approach->left_0", "approach->straight_0", "approach->right_0"}

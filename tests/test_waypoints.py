@@ -6,7 +6,8 @@ import pytest
 from mjdrive import roads, suite
 from mjdrive.envs import make_env
 from mjdrive.policies import pure_pursuit_policy
-from mjdrive.sensors import LaneInvasionSensor, RouteTracker, footprint
+from mjdrive.roads.geometry import footprint
+from mjdrive.sensors import LaneInvasionSensor, RouteTracker
 
 
 def _drive(env, seed):

@@ -1,4 +1,5 @@
-"""Planar geometry for road building: angle wrapping and constant-curvature reference paths.
+"""Planar geometry: angle wrapping, points of oriented boxes (vehicle corners) and constant-curvature
+reference paths for road building.
 
 A `Path` is a start pose plus pieces of constant curvature (lines and circular arcs). Sampling it at a
 lateral offset gives the exact parallel curve (an arc of radius R offset by d to its inside has radius
@@ -19,6 +20,24 @@ STEP = 0.5  # [m] largest spacing of sampled polyline points
 def wrap_angle(angle: ArrayLike):
     """Wrap an angle [rad] (scalar or array) to [-pi, pi)."""
     return (np.asarray(angle, dtype=float) + np.pi) % (2 * np.pi) - np.pi
+
+
+BOX_CORNERS = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]])  # front-left, front-right, rear-right, rear-left
+
+
+def box_points(centre: ArrayLike, heading: ArrayLike, local: ArrayLike) -> np.ndarray:
+    """World points (..., M, 2) [m] of points `local` (M,2) [m] given in the frames of boxes at `centre`
+    (..., 2) [m] with `heading` (...) [rad] (x ahead, y to the left)."""
+    centre, local = np.asarray(centre, dtype=float), np.asarray(local, dtype=float)
+    heading = np.asarray(heading, dtype=float)
+    c, s = np.cos(heading)[..., None], np.sin(heading)[..., None]
+    lx, ly = local[:, 0], local[:, 1]
+    return np.stack([centre[..., :1] + c * lx - s * ly, centre[..., 1:] + s * lx + c * ly], axis=-1)
+
+
+def footprint(x: float, y: float, yaw: float, length: float, width: float) -> np.ndarray:
+    """The four corners (4,2) [m] of a vehicle's rectangle: front-left, front-right, rear-right, rear-left."""
+    return box_points((x, y), yaw, BOX_CORNERS * (0.5 * length, 0.5 * width))
 
 
 def unit(heading: float) -> np.ndarray:

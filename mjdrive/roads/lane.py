@@ -162,7 +162,7 @@ class Lane:
         j = int(np.argmin(dist))
         tc = min(max(float(t[j]), 0.0), 1.0)
         row = rows[j]
-        heading = (row[sp.H0] + tc * row[sp.DH] + np.pi) % (2 * np.pi) - np.pi
+        heading = wrap_angle(row[sp.H0] + tc * row[sp.DH])
         return float(row[sp.S0] + tc * row[sp.LEN]), float(d[j]), float(heading)
 
     # --- outline ------------------------------------------------------------------------------------

@@ -19,7 +19,8 @@ from dm_env import specs
 from mjdrive.comfort import ComfortMeter, ComfortMetrics
 from mjdrive.config import Config, ConfigError, param
 from mjdrive.roads import RoadMap
-from mjdrive.sensors import SENSORS, CameraRenderer, CollisionSensor, ExtraSensors, LaneInvasionSensor, footprint
+from mjdrive.roads.geometry import footprint
+from mjdrive.sensors import SENSORS, CameraRenderer, CollisionSensor, ExtraSensors, LaneInvasionSensor
 from mjdrive.vehicle import VEHICLES, Vehicle
 from mjdrive.world import PHYSICS_TIMESTEP
 

@@ -61,8 +61,8 @@ from dm_env import specs
 from mjdrive import roads, world
 from mjdrive.config import ConfigError, param
 from mjdrive.roads import Lane, RoadMap
+from mjdrive.roads.geometry import footprint, wrap_angle
 from mjdrive.roads.route_frame import RouteFrame
-from mjdrive.sensors import wrap_angle
 from mjdrive.tasks.base import (
     DrivingConfig,
     DrivingEnvironment,
@@ -176,8 +176,6 @@ class RoundaboutTask(DrivingTask):
         self._lengths = 2 * self.traffic.half_size[:, :2]
         self.route: list[int] = []
         self.route_lane: Lane | None = None
-        half = np.array([0.5 * self.params.length, 0.5 * self.params.width])
-        self._footprint = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * half  # (4,2) [m] in the car frame
 
     # --- episode ----------------------------------------------------------------------------------
     def initialize_episode(self, physics: Physics) -> None:
@@ -245,8 +243,7 @@ class RoundaboutTask(DrivingTask):
         data = physics.raw_data
         x, y, yaw, self.speed, _, self.yaw_rate = self.vehicle.planar_state(data)  # [m/s], [rad/s]
         self.xy, self.yaw = np.array([x, y]), yaw
-        c, s_ = math.cos(yaw), math.sin(yaw)
-        self.corners = self.xy + self._footprint @ np.array([[c, s_], [-s_, c]])  # (4,2) [m]
+        self.corners = footprint(x, y, yaw, self.params.length, self.params.width)  # (4,2) [m]
         s, d = self.route_frame(np.vstack([self.xy[None], self.corners]))
         self.route_s, self.lane_offset = float(s[0]), float(d[0])  # [m]
         self.corner_offsets = d[1:]  # [m] of the footprint corners from the route centre line

@@ -36,10 +36,10 @@ from dm_env import specs
 from mjdrive import world
 from mjdrive.config import ConfigError, param
 from mjdrive.roads import Lane
+from mjdrive.roads.geometry import wrap_angle
 from mjdrive.roads.ports import ComposedMap
 from mjdrive.roads.route_frame import RouteFrame
 from mjdrive.roads.urban import FOLLOW, UrbanRoute, concatenated, route_offsets, route_through
-from mjdrive.sensors import wrap_angle
 from mjdrive.tasks.base import (
     DrivingConfig,
     DrivingEnvironment,

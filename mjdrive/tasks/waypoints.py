@@ -24,7 +24,8 @@ from dm_env import specs
 from mjdrive import roads, world
 from mjdrive.config import param
 from mjdrive.roads import Lane, RoadMap
-from mjdrive.sensors import RouteTracker, wrap_angle
+from mjdrive.roads.geometry import wrap_angle
+from mjdrive.sensors import RouteTracker
 from mjdrive.tasks.base import (
     DrivingConfig,
     DrivingEnvironment,
@@ -121,7 +122,7 @@ class WaypointTask(DrivingTask):
         s, d, lane_heading = self.route_lane.frame(self.xy, near_s=self.route_s)
         self.route_s = s  # [m] progress along the route polyline
         self.lane_offset = d  # [m] d_c, > 0 left of the lane centre
-        self.heading_error = (yaw - lane_heading + np.pi) % (2 * np.pi) - np.pi  # [rad]
+        self.heading_error = float(wrap_angle(yaw - lane_heading))  # [rad]
         self.yaw = yaw
         self.speed = float(self.vehicle.speed(physics.raw_data))  # [m/s]
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from mjdrive.roads import Marking, RoadMap
+from mjdrive.roads.geometry import BOX_CORNERS, box_points
 
 LANE_GAP = 1.0  # [m] gap between consecutive lanes in the flat arc-length coordinate
 REFERENCE_HALF_SIZE = (2.4, 1.0)  # [m] half length and half width of the largest vehicle (stop lines)
@@ -27,12 +28,12 @@ def polyline_distance(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
     return np.hypot(*(points[:, None] - closest).transpose(2, 0, 1)).min(axis=1)
 
 
+FOOTPRINT_POINTS = np.vstack([BOX_CORNERS, [[1, 0], [-1, 0]]])  # corners, then front and rear midpoints
+
+
 def footprint_points(centre: np.ndarray, heading: np.ndarray, half_length: float, half_width: float) -> np.ndarray:
     """Footprint corners and front/rear midpoints (K,6,2) [m] of boxes at centre (K,2), heading (K,)."""
-    c, s = np.cos(heading)[:, None], np.sin(heading)[:, None]
-    lx = np.array([1, 1, -1, -1, 1, -1]) * half_length
-    ly = np.array([1, -1, -1, 1, 0, 0]) * half_width
-    return np.stack([centre[:, :1] + c * lx - s * ly, centre[:, 1:] + s * lx + c * ly], axis=-1)
+    return box_points(centre, heading, FOOTPRINT_POINTS * (half_length, half_width))
 
 
 class TrafficMap:
