@@ -5,8 +5,8 @@ from __future__ import annotations
 from typing import Any
 
 from mjdrive.agents.checkpoints import CheckpointError
-from mjdrive.agents.env_factory import split_task
 from mjdrive.envs import make_env
+from mjdrive.suite import split_task
 
 ALGOS = ("ppo", "sac", "dqn", "trpo")
 

@@ -25,12 +25,12 @@ import torch.nn.functional as F
 
 from mjdrive.agents.checkpoints import save_checkpoint
 from mjdrive.agents.config import apply_overrides, load_config
-from mjdrive.agents.env_factory import split_task
 from mjdrive.agents.evaluate import load_agent
 from mjdrive.agents.observations import ObsBatch
 from mjdrive.agents.sac import SACAgent
 from mjdrive.agents.seeding import set_seed
 from mjdrive.envs import make_env
+from mjdrive.suite import split_task
 
 DEFAULTS = {
     "iterations": 4,  # DAgger iterations (the first driven by the teacher)

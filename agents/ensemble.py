@@ -30,7 +30,7 @@ import numpy as np
 
 from mjdrive.agents.algorithms import agent_from_payload
 from mjdrive.agents.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
-from mjdrive.agents.env_factory import split_task
+from mjdrive.suite import split_task
 
 RULES = ("mean", "min_pedal")
 CONTINUOUS_ACTIONS = ("continuous", "pedal")  # action sets whose actions can be averaged

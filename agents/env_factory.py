@@ -3,13 +3,7 @@
 from __future__ import annotations
 
 from mjdrive.envs.batched import BatchedEnv
-
-
-def split_task(name: str) -> tuple[str, str]:
-    if "/" not in name:
-        raise ValueError(f"task must be DOMAIN/TASK (e.g. waypoints/straight), got {name!r}")
-    domain, task = name.split("/", 1)
-    return domain, task
+from mjdrive.suite import split_task
 
 
 def training_tasks(config: dict) -> tuple[str, list[str]]:

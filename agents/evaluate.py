@@ -17,7 +17,6 @@ from mjdrive.agents.algorithms import agent_from_payload
 from mjdrive.agents.checkpoints import load_checkpoint
 from mjdrive.agents.config import parse_yaml
 from mjdrive.agents.ensemble import describe, ensemble_agent
-from mjdrive.agents.env_factory import split_task
 from mjdrive.envs import make_env
 from mjdrive.record.summary import (
     COMFORT_COLUMNS,
@@ -28,6 +27,7 @@ from mjdrive.record.summary import (
     roundabout_arms,
     summarize,
 )
+from mjdrive.suite import split_task
 
 
 def load_agent(path: str | Path) -> tuple[Any, dict]:

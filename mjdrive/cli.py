@@ -108,18 +108,11 @@ def task_name(text: str) -> str:
     """argparse type: DOMAIN/TASK of a registered task."""
     from mjdrive import suite
 
-    if text.count("/") != 1:
-        raise argparse.ArgumentTypeError(f"expected DOMAIN/TASK (e.g. waypoints/straight), got {text!r}")
     try:
-        suite.task_config(*text.split("/"))
+        suite.task_config(*suite.split_task(text))
     except ValueError as error:
         raise argparse.ArgumentTypeError(str(error)) from None
     return text
-
-
-def _split_task(name: str) -> tuple[str, str]:
-    domain, task = task_name(name).split("/", 1)
-    return domain, task
 
 
 def _check_kwargs(domain: str, task: str, task_kwargs: dict) -> None:
@@ -183,7 +176,7 @@ def cmd_list(args) -> int:
         print(suite.kwargs_reference(), end="")
         return 0
     if args.kwargs:
-        domain, task = _split_task(args.kwargs)
+        domain, task = suite.split_task(args.kwargs)
         config_class, defaults = suite.task_config(domain, task)
         print(f"keywords of {domain}/{task} (suite.load(..., task_kwargs={{...}}), --task-kwarg KEY=VALUE):")
         print(config_class.markdown(defaults))
@@ -206,7 +199,9 @@ def cmd_list(args) -> int:
 
 def _checked_task(args) -> tuple[str, str, dict]:
     """DOMAIN, TASK and validated task keywords of `run` / `drive` (a user's mistake before anything is built)."""
-    domain, task = _split_task(args.task)
+    from mjdrive import suite
+
+    domain, task = suite.split_task(args.task)
     task_kwargs = _parse_kwargs(args.task_kwarg)
     if args.live and not args.record:
         raise ValueError("--live streams the channels of the episode logs: drop --no-record")

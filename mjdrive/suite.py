@@ -39,6 +39,15 @@ TASKS_BY_DOMAIN = _get_tasks_by_domain(ALL_TASKS)
 TAGS = tuple(sorted({tag for module in _DOMAINS.values() for tag in module.SUITE.tags()}))
 
 
+def split_task(name: str) -> tuple[str, str]:
+    """(domain, task) of a "DOMAIN/TASK" name; ValueError when it is not of that form (not a registry check:
+    `task_config` does that)."""
+    domain, sep, task = name.partition("/")
+    if not sep or not domain or not task or "/" in task:
+        raise ValueError(f"expected DOMAIN/TASK (e.g. waypoints/straight), got {name!r}")
+    return domain, task
+
+
 def tasks_with_tag(tag: str) -> tuple[tuple[str, str], ...]:
     """(domain, task) pairs carrying `tag`; unknown tags raise ValueError listing the valid ones."""
     if tag not in TAGS:

@@ -15,10 +15,10 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mjdrive.agents.env_factory import split_task  # noqa: E402
 from mjdrive.agents.evaluate import load_agent  # noqa: E402
 from mjdrive.envs import make_env  # noqa: E402
 from mjdrive.envs.batched import ObservationLayout  # noqa: E402
+from mjdrive.suite import split_task  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:

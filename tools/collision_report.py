@@ -26,10 +26,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mjdrive.agents.env_factory import split_task  # noqa: E402
 from mjdrive.agents.evaluate import load_agent  # noqa: E402
 from mjdrive.envs import make_env  # noqa: E402
 from mjdrive.roads.geometry import wrap_angle  # noqa: E402
+from mjdrive.suite import split_task  # noqa: E402
 
 HISTORY = 5  # [steps] 1 s at 5 Hz
 FRAMES = 8  # [steps] of camera images in a --frames strip (1.6 s)
