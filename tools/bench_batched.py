@@ -63,13 +63,13 @@ def bench_batched(task: str, num_envs: int, nthread: int, backend: str, seconds:
 
 
 def bench_physics(task: str, num_envs: int, nthread: int, backend: str, seconds: float, rounds: int) -> float:
-    """The physics call alone (BatchedEnv._step_physics), env steps/s: the part that threads can speed up."""
+    """The physics call alone (BatchedEnv.step_physics), env steps/s: the part that threads can speed up."""
     domain, name = task.split("/")
     env = BatchedEnv(domain, name, num_envs=num_envs, nthread=nthread, backend=backend)
     env.reset(seed=0)
     for base in env.bases:
-        base.task.before_step(CRUISE.astype(np.float64), base.dm_env.physics)
-    result = max(rate(env._step_physics, seconds) for _ in range(rounds)) * num_envs
+        base.before_physics(CRUISE)
+    result = max(rate(env.step_physics, seconds) for _ in range(rounds)) * num_envs
     env.close()
     return result
 

@@ -150,7 +150,7 @@ class BatchedEnv:
         terminated, truncated = np.zeros(n, bool), np.zeros(n, bool)
         for i, base in enumerate(self.bases):
             base.before_physics(self._command(i, actions[i]))
-        step_in_chunks([base.dm_env.physics for base in self.bases], self.n_sub_steps, self._step_all)
+        self.step_physics()
         final_obs: list[dict[str, np.ndarray]] = []
         final_info: list[dict | None] = [None] * n
         for i, base in enumerate(self.bases):
@@ -205,6 +205,11 @@ class BatchedEnv:
     def _command(self, i: int, action):
         """The (throttle, steer, brake) command of copy i: through its action wrapper, if any."""
         return self.envs[i].action(action) if self.wrapped_actions else action
+
+    def step_physics(self) -> None:
+        """Advance every copy's physics one control period (between the copies' `before_physics` and
+        `after_physics`), the substep callbacks between chunks as in `Physics.advance`."""
+        step_in_chunks([base.dm_env.physics for base in self.bases], self.n_sub_steps, self._step_all)
 
     def _step_all(self, n_sub: int) -> None:
         """`n_sub` physics steps of every copy in one call of the backend."""
