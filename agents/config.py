@@ -8,6 +8,8 @@ import re
 from pathlib import Path
 from typing import Any
 
+from mjdrive.config import parse_value
+
 CONFIG_DIR = Path(__file__).resolve().parent / "configs"
 
 
@@ -43,7 +45,8 @@ SCIENTIFIC = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")
 
 
 def apply_overrides(config: dict, pairs: list[str]) -> dict:
-    """`a.b=value` pairs (value parsed as YAML: numbers, booleans, lists) applied to a copy of `config`."""
+    """`a.b=value` pairs (value read by `mjdrive.config.parse_value`, like `--task-kwarg`'s) applied to a copy
+    of `config`."""
     config = copy.deepcopy(config)
     for pair in pairs:
         if "=" not in pair:
@@ -53,5 +56,5 @@ def apply_overrides(config: dict, pairs: list[str]) -> dict:
         *parents, leaf = key.split(".")
         for part in parents:
             node = node.setdefault(part, {})
-        node[leaf] = parse_yaml(value)
+        node[leaf] = parse_value(value)
     return config

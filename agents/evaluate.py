@@ -15,7 +15,6 @@ from typing import Any
 
 from mjdrive.agents.algorithms import agent_from_payload
 from mjdrive.agents.checkpoints import load_checkpoint
-from mjdrive.agents.config import parse_yaml
 from mjdrive.agents.ensemble import describe, ensemble_agent
 from mjdrive.envs import make_env
 from mjdrive.record.summary import (
@@ -234,21 +233,11 @@ def to_markdown(result: dict) -> str:
     return "\n".join(lines)
 
 
-def parse_task_kwargs(pairs: list[str]) -> dict[str, Any]:
-    """`--task-kwarg KEY=VALUE` pairs as a dict, each VALUE read as YAML (numbers, booleans, lists)."""
-    task_kwargs = {}
-    for pair in pairs:
-        if "=" not in pair:
-            raise ValueError(f"--task-kwarg expects KEY=VALUE, got {pair!r}")
-        key, value = pair.split("=", 1)
-        task_kwargs[key] = parse_yaml(value)
-    return task_kwargs
-
-
 def eval_command(args) -> int:
     """`mjdrive eval` (argument parsing lives in mjdrive/cli.py): prints markdown, writes OUT.md/OUT.json."""
     import json
 
+    from mjdrive.config import parse_task_kwargs
     from mjdrive.run_folder import fresh_folder
 
     task_kwargs = parse_task_kwargs(args.task_kwarg)

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mjdrive.config import parse_task_kwargs
 from mjdrive.policies import POLICIES
 from mjdrive.run_folder import fresh_folder
 
@@ -123,20 +124,6 @@ def _check_kwargs(domain: str, task: str, task_kwargs: dict) -> None:
     config_class.from_dict(task_kwargs, defaults, where=f"{domain}/{task}")
 
 
-def _parse_kwargs(pairs: list[str]) -> dict:
-    """KEY=VALUE pairs, VALUE parsed as JSON when it parses (numbers, booleans, lists, null), else a string."""
-    out = {}
-    for pair in pairs:
-        key, sep, value = pair.partition("=")
-        if not sep or not key:
-            raise ValueError(f"--task-kwarg expects KEY=VALUE, got {pair!r}")
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
-    return out
-
-
 def sensor_names(text: str) -> tuple[str, ...]:
     """argparse type: comma-separated extra sensors (depth, segmentation, range)."""
     from mjdrive.sensors import SENSORS
@@ -202,7 +189,7 @@ def _checked_task(args) -> tuple[str, str, dict]:
     from mjdrive import suite
 
     domain, task = suite.split_task(args.task)
-    task_kwargs = _parse_kwargs(args.task_kwarg)
+    task_kwargs = parse_task_kwargs(args.task_kwarg)
     if args.live and not args.record:
         raise ValueError("--live streams the channels of the episode logs: drop --no-record")
     if args.sensors:  # the task keyword `sensors`: in the summary and the logs' task keywords like any other

@@ -17,10 +17,12 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import enum
+import json
 import math
+import re
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Union
 
@@ -291,3 +293,106 @@ def _default_text(value: Any) -> str:
     if isinstance(value, float):
         return f"{value:g}"
     return repr(value)
+
+
+# --- values typed on the command line ------------------------------------------------------------------------
+_PLAIN: dict[str, Any] = {
+    "": None, "~": None, "null": None, "Null": None, "NULL": None,
+    "true": True, "True": True, "TRUE": True, "false": False, "False": False, "FALSE": False,
+    ".inf": math.inf, "+.inf": math.inf, "-.inf": -math.inf, ".nan": math.nan,
+}
+_INTEGER = re.compile(r"[-+]?\d+")
+_FLOAT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
+
+
+def parse_value(text: str) -> Any:
+    """A value typed on the command line (the VALUE of KEY=VALUE), one reading for every command and tool:
+    JSON where it parses; else YAML's flow forms, read without pyyaml (not in the core install): `[a, b]`
+    and `{key: value}` with unquoted items, quoted strings, true/True/false/False, `~` or nothing for null,
+    numbers such as `.5` and `1e-4`; anything else is the text itself (a string)."""
+    try:
+        return json.loads(text)
+    except ValueError:
+        return _flow(text.strip())
+
+
+def parse_task_kwargs(pairs: Sequence[str]) -> dict[str, Any]:
+    """`--task-kwarg KEY=VALUE` pairs as a dict, each VALUE read by `parse_value`."""
+    out = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--task-kwarg expects KEY=VALUE, got {pair!r}")
+        out[key] = parse_value(value)
+    return out
+
+
+def _flow(text: str) -> Any:
+    """`parse_value` of a text that is not JSON (stripped)."""
+    if len(text) >= 2 and text[0] + text[-1] in ("[]", "{}"):
+        items = _split_items(text[1:-1])
+        if items is not None and text[0] == "[":
+            return [_flow(item) for item in items]
+        if items is not None:
+            out = {}
+            for item in items:
+                key, value = _key_value(item)
+                out[_flow(key)] = _flow(value)
+            return out
+    if len(text) >= 2 and text[0] == text[-1] == "'":
+        return text[1:-1].replace("''", "'")
+    if len(text) >= 2 and text[0] == text[-1] == '"':
+        try:
+            return json.loads(text)
+        except ValueError:
+            return text[1:-1]
+    if text in _PLAIN:
+        return _PLAIN[text]
+    if _INTEGER.fullmatch(text):
+        return int(text)
+    if _FLOAT.fullmatch(text):
+        return float(text)
+    return text
+
+
+def _split_items(inner: str) -> list[str] | None:
+    """The comma-separated items (stripped) of a flow list's or mapping's inside; None if its brackets or
+    quotes do not pair up."""
+    items, depth, quote, start = [], 0, "", 0
+    for i, char in enumerate(inner):
+        if quote:
+            quote = "" if char == quote else quote
+        elif char in "'\"":
+            quote = char
+        elif char in "[{":
+            depth += 1
+        elif char in "]}":
+            depth -= 1
+            if depth < 0:
+                return None
+        elif char == "," and depth == 0:
+            items.append(inner[start:i].strip())
+            start = i + 1
+    if depth or quote:
+        return None
+    items.append(inner[start:].strip())
+    if not items[-1]:  # `[]`, or `[a, b,]`: a trailing comma adds nothing
+        items.pop()
+    return items
+
+
+def _key_value(item: str) -> tuple[str, str]:
+    """A flow mapping's `key: value` item split at its first colon followed by a space (or ending it)."""
+    depth, quote = 0, ""
+    for i, char in enumerate(item):
+        if quote:
+            quote = "" if char == quote else quote
+        elif char in "'\"":
+            quote = char
+        elif char in "[{":
+            depth += 1
+        elif char in "]}":
+            depth -= 1
+        elif char == ":" and depth == 0 and (i + 1 == len(item) or item[i + 1] == " "):
+            return item[:i].strip(), item[i + 1:].strip()
+    return item, ""

@@ -27,7 +27,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from mjdrive.agents.checkpoints import load_checkpoint  # noqa: E402
 from mjdrive.agents.ensemble import describe  # noqa: E402
-from mjdrive.agents.evaluate import evaluate, parse_task_kwargs  # noqa: E402
+from mjdrive.agents.evaluate import evaluate  # noqa: E402
+from mjdrive.config import parse_task_kwargs  # noqa: E402
 from mjdrive.tasks.roundabout import DENSITIES  # noqa: E402
 
 # Table 3 of the study (Ben Elallid et al. 2024): density -> (avg reward, time s, speed m/s, distance m,
