@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mjdrive.roads import Marking, RoadMap
+from mjdrive.roads import Marking, RoadMap, spawn_points
 from mjdrive.roads.geometry import BOX_CORNERS, box_points
 
 LANE_GAP = 1.0  # [m] gap between consecutive lanes in the flat arc-length coordinate
@@ -233,21 +233,16 @@ class TrafficMap:
 
     # --- spawn points ------------------------------------------------------------------------------------
     def _spawn_points(self) -> None:
-        """Places (lane, s) on non-junction lanes, off crosswalks, pairwise far enough apart that any two
-        vehicles placed on them never overlap (greedy, in lane order)."""
-        lanes, ss = [], []
-        for i, lane in enumerate(self.road_map.lanes):
-            if self.in_junction[i] or lane.length < 2 * SPAWN_MARGIN:
-                continue
-            s = np.arange(SPAWN_MARGIN, lane.length - SPAWN_MARGIN + 1e-9, SPAWN_STEP)
-            on_cw = np.zeros(len(s), dtype=bool)
-            for k in np.flatnonzero(self.cross_lane == i):
-                lo, hi = self.cross_s[k]
-                on_cw |= (s > lo - 3.0) & (s < hi + 3.0)
-            lanes.append(np.full((~on_cw).sum(), i))
-            ss.append(s[~on_cw])
-        lane = np.concatenate(lanes) if lanes else np.zeros(0, np.int64)
-        s = np.concatenate(ss) if ss else np.zeros(0)
+        """Places (lane, s) among `roads.spawn_points` (on non-junction lanes), off crosswalks, pairwise far
+        enough apart that any two vehicles placed on them never overlap (greedy, in lane order)."""
+        candidates = spawn_points(self.road_map, SPAWN_STEP, SPAWN_MARGIN)
+        lane = np.array([i for i, _ in candidates], dtype=np.int64)
+        s = np.array([s for _, s in candidates], dtype=float)
+        on_cw = np.zeros(len(s), dtype=bool)
+        for k in range(len(self.cross_lane)):
+            lo, hi = self.cross_s[k]
+            on_cw |= (lane == self.cross_lane[k]) & (s > lo - 3.0) & (s < hi + 3.0)
+        lane, s = lane[~on_cw], s[~on_cw]
         x, y, h = self.lookup(lane, s)
         keep: list[int] = []
         for k in range(len(lane)):
