@@ -1,23 +1,33 @@
-"""Route coordinates of points near a vehicle that moves along a route, searched in a window of segments."""
+"""Route coordinates of points near a vehicle that moves along a route, searched in a window of segments.
+
+`Lane.local_coordinates` / `Lane.frame` give a lane's own frame (the exact inverse of `Lane.position`, along
+mitred normals). A `RouteFrame` reads the same segments (the lane's segment table) but projects each point
+orthogonally onto its nearest segment, searching a window that follows the ego: the progress and offsets
+that the roundabout and urban tasks reward (their logs replay bit for bit against it).
+"""
 
 from __future__ import annotations
 
 import numpy as np
 
+from mjdrive.roads import _spatial as sp
+from mjdrive.roads.lane import Lane
+
 
 class RouteFrame:
-    """Route coordinates (s along, d to the left) [m] of points, searching only the route segments near the
-    ego's last position (the route is a polyline of ~0.5 m segments; a full search on `reset`)."""
+    """Route coordinates (s along, d to the left) [m] of points near a route lane: the nearest point on its
+    centre polyline (~0.5 m segments), searching only the segments near the ego's last position (all of them
+    with `full`, on reset)."""
 
     WINDOW = (-8, 20)  # segments searched around the last one [-]
 
-    def __init__(self, polyline: np.ndarray):
-        self.x0, self.y0 = polyline[:-1, 0].copy(), polyline[:-1, 1].copy()
-        delta = np.diff(polyline, axis=0)
-        self.length = np.hypot(delta[:, 0], delta[:, 1])
-        self.tangent = delta / self.length[:, None]
-        self.tx, self.ty = self.tangent[:, 0].copy(), self.tangent[:, 1].copy()
-        self.s0 = np.concatenate([[0.0], np.cumsum(self.length)[:-1]])
+    def __init__(self, lane: Lane):
+        table = lane._table  # the lane's segments: start, unit tangent, start s, length
+        self.x0, self.y0 = table[:, sp.P0X].copy(), table[:, sp.P0Y].copy()
+        self.length = table[:, sp.LEN].copy()
+        self.tangent = table[:, sp.TX:sp.TY + 1].copy()
+        self.tx, self.ty = table[:, sp.TX].copy(), table[:, sp.TY].copy()
+        self.s0 = table[:, sp.S0].copy()
         self.segment = 0
 
     def __call__(self, points: np.ndarray, full: bool = False) -> tuple[np.ndarray, np.ndarray]:

@@ -185,7 +185,7 @@ class RoundaboutTask(DrivingTask):
         self.entry_arm, self.exit_arm = entry, exit_arm
         self.route = list(self.routes[(entry, exit_arm)])
         self.route_lane = Lane(rm.route_polyline(self.route), name="route")
-        self.route_frame = RouteFrame(self.route_lane.centre)
+        self.route_frame = RouteFrame(self.route_lane)
         lengths = np.array([rm.lanes[i].length for i in self.route])
         self._route_starts = np.concatenate([[0.0], np.cumsum(lengths)[:-1]])  # [m] along the route
         self._route_width = rm.lanes[self.route[0]].width

@@ -104,7 +104,7 @@ class UrbanTask(DrivingTask):
         self.traffic.bind(model)
         self.traffic.set_ego_route(route.route)
         self.route_lane = Lane(np.asarray(route.polyline), name="route")
-        self.route_frame = RouteFrame(self.route_lane.centre)
+        self.route_frame = RouteFrame(self.route_lane)
         self.route_starts = route_offsets(route.road_map, route.route)  # [m] along the route
         self.route_end = float(self.route_frame.s0[-1] + self.route_frame.length[-1])  # [m]
         self.start_s = 0.0 if scenario == "concatenated" else max(
