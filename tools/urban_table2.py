@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from mjdrive.envs import make_env
+from mjdrive.envs.fanout import fan_out
 from mjdrive.policies import POLICIES, make_policy
 
 PAPER = {"Ours (paper, hybrid DRL)": (95.76, 4.37, 6.20, 3.33, 76.85, 7.60),
@@ -24,26 +25,37 @@ PAPER = {"Ours (paper, hybrid DRL)": (95.76, 4.37, 6.20, 3.33, 76.85, 7.60),
 COLUMNS = ("success [%]", "p95 jerk [m/s^3]", "max jerk [m/s^3]", "p95 accel [m/s^2]", "time [s]", "speed [m/s]")
 
 
-def run(task: str, policy: str, episodes: int, seed: int) -> list[dict]:
-    rows = []
-    start = time.perf_counter()
-    for i in range(episodes):
-        env = make_env("urban", task, random=seed + i)
-        act = make_policy(policy, env, seed + i)
-        observation, info = env.reset(seed=seed + i)
-        while True:
-            observation, _, terminated, truncated, info = env.step(act(observation))
-            if terminated or truncated:
-                break
-        end = ("success" if info["success"] else "collision" if info["collision"] else
-               "off_route" if info["off_route"] else "time_limit")
-        rows.append({"seed": seed + i, "end": end, "time": info["elapsed_time"], "speed": info["average_speed"],
-                     "jerk_p95": info["jerk_p95_mps3"], "jerk_max": info["jerk_max_mps3"],
-                     "accel_p95": info["accel_p95_mps2"], "scenario": info["scenario"]})
-        env.close()
-        print(f"[{i + 1}/{episodes}] seed {seed + i}: {end} after {info['elapsed_time']:.1f} s "
+def episode(spec: tuple[str, str, int], index: int) -> dict:
+    """Episode `index` of (task, policy, first seed): its end and metrics (a fan-out job: depends only on
+    its arguments)."""
+    task, policy, seed = spec
+    env = make_env("urban", task, random=seed + index)
+    act = make_policy(policy, env, seed + index)
+    observation, info = env.reset(seed=seed + index)
+    while True:
+        observation, _, terminated, truncated, info = env.step(act(observation))
+        if terminated or truncated:
+            break
+    env.close()
+    end = ("success" if info["success"] else "collision" if info["collision"] else
+           "off_route" if info["off_route"] else "time_limit")
+    return {"seed": seed + index, "end": end, "time": info["elapsed_time"], "speed": info["average_speed"],
+            "jerk_p95": info["jerk_p95_mps3"], "jerk_max": info["jerk_max_mps3"],
+            "accel_p95": info["accel_p95_mps2"], "scenario": info["scenario"]}
+
+
+def run(task: str, policy: str, episodes: int, seed: int, workers: int = 0, ray: str | None = None) -> list[dict]:
+    """Rows of episodes 0..episodes-1 in episode order, on `workers` processes (0: here) or Ray
+    (`mjdrive.envs.fanout`): the same rows for any number of workers."""
+    start, done = time.perf_counter(), [0]
+
+    def report(index: int, row: dict) -> None:
+        done[0] += 1
+        print(f"[{done[0]}/{episodes}] seed {row['seed']}: {row['end']} after {row['time']:.1f} s "
               f"({time.perf_counter() - start:.0f} s)", file=sys.stderr, flush=True)
-    return rows
+
+    rows = fan_out(episode, (task, policy, seed), range(episodes), workers=workers, ray=ray, on_result=report)
+    return [rows[i] for i in range(episodes)]
 
 
 def markdown(task: str, policy: str, rows: list[dict], seed: int) -> str:
@@ -75,9 +87,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--policy", default="autopilot", choices=POLICIES)
     parser.add_argument("--episodes", type=int, default=200)
     parser.add_argument("--seed", type=int, default=20000, help="seed of the first episode")
+    parser.add_argument("--workers", type=int, default=0, metavar="N",
+                        help="worker processes (0: run the episodes here, in order); same rows for any N")
+    parser.add_argument("--ray", default=None, metavar="ADDRESS",
+                        help="run the episodes as Ray tasks ('local' for a private Ray of --workers CPUs)")
     parser.add_argument("--out", default=None, help="write the markdown table here")
     args = parser.parse_args(argv)
-    rows = run(args.task, args.policy, args.episodes, args.seed)
+    if args.workers < 0:
+        parser.error(f"--workers must be >= 0, got {args.workers}")
+    rows = run(args.task, args.policy, args.episodes, args.seed, args.workers, args.ray)
     text = markdown(args.task, args.policy, rows, args.seed)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
