@@ -91,8 +91,8 @@ def test_braking_distance_from_50kmh(car):
     theory = v0**2 / (2 * mu * g)
     x, y, yaw = veh.pose(data)
     assert abs(veh.speed(data)) < 0.01
-    # The published +5.7 ... +6.4% (docs/vehicles.md, results/physics_dt.md; the tyres slip, never lock) within 2 points;
-    # the SUV's +9.4% at 8 ms fails.
+    # The published +5.7 ... +6.4% (docs/vehicles.md, results/physics_dt.md; the tyres slip, never lock)
+    # within 2 points; the SUV's +9.4% at 8 ms fails.
     assert 0.04 < x / theory - 1 < 0.08, (x, theory)
     assert abs(y) < 0.05 and abs(yaw) < 0.01
     assert min(accel) > -1.3 * mu * g  # no impacts: the wheels do not lock, hop or chatter
