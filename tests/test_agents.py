@@ -433,13 +433,8 @@ def test_episode_log_is_flushed_as_episodes_end_and_resume_drops_later_rows(tmp_
 
 
 def test_select_checkpoint_ranks_a_runs_checkpoints_and_exports_the_chosen_one(tmp_path):
-    import importlib.util
-    from pathlib import Path
+    from tools import select_checkpoint as tool
 
-    spec = importlib.util.spec_from_file_location(
-        "select_checkpoint", Path(__file__).resolve().parents[1] / "tools" / "select_checkpoint.py")
-    tool = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tool)
     assert sorted([tool.rank_key({"success_pct": 90, "collision_pct": 10, "avg_reward": 5}),
                    tool.rank_key({"success_pct": 95, "collision_pct": 5, "avg_reward": 1}),
                    tool.rank_key({"success_pct": 90, "collision_pct": 5, "avg_reward": 1})])[0] == (-95, 5, -1)
@@ -553,13 +548,8 @@ def test_demonstrations_go_through_the_mixed_tasks_in_turn(monkeypatch):
 def test_roundabout_table3_scores_every_density_with_task_kwargs_over_the_checkpoints(tmp_path):
     """tools/roundabout_table3.py: one row per density; --task-kwarg overrides what the agent trained with
     (here a 1 s time limit, so every episode ends on it) and the report says both."""
-    import importlib.util
-    from pathlib import Path
+    from tools import roundabout_table3 as tool
 
-    spec = importlib.util.spec_from_file_location(
-        "roundabout_table3", Path(__file__).resolve().parents[1] / "tools" / "roundabout_table3.py")
-    tool = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tool)
     run = tmp_path / "run"
     config = _config("sac", ["steps=64", *OFF_POLICY, "task=roundabout/d120", "actions=pedal",
                              "mix_tasks=[roundabout/d140]", "task_kwargs.collision_penalty=300"])

@@ -305,15 +305,9 @@ def test_off_road_ends_the_episode_only_when_asked():
 def test_collision_report_locates_the_road_user_hit_and_saves_what_the_agent_saw(tmp_path):
     """tools/collision_report.py on an agent that floors it into the densest roundabout: the car it hits is
     found just ahead, and --frames keeps the agent's last 8 camera frames, oldest left."""
-    import importlib.util
-    from pathlib import Path
-
     from PIL import Image
 
-    spec = importlib.util.spec_from_file_location(
-        "collision_report", Path(__file__).resolve().parents[1] / "tools" / "collision_report.py")
-    tool = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tool)
+    from tools import collision_report as tool
 
     class FullThrottle:
         def act(self, obs):

@@ -1,24 +1,21 @@
 """Does a camera agent use its image? Greedy episodes with the real image, a black one, and the first
 frame frozen; the scalar observations (d, θ, v or the destination) are left as they are.
 
-    python tools/ablate_image.py results/checkpoints/ppo_camera_straight.pt --episodes 1
+    python -m tools.ablate_image results/checkpoints/ppo_camera_straight.pt --episodes 1
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from mjdrive.agents.evaluate import load_agent  # noqa: E402
-from mjdrive.envs import make_env  # noqa: E402
-from mjdrive.envs.batched import ObservationLayout  # noqa: E402
-from mjdrive.suite import split_task  # noqa: E402
+from mjdrive.agents.evaluate import load_agent
+from mjdrive.envs import make_env
+from mjdrive.envs.batched import ObservationLayout
+from mjdrive.suite import split_task
 
 
 def main(argv: list[str] | None = None) -> int:

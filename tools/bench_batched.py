@@ -1,6 +1,6 @@
 """Throughput of BatchedEnv: env steps/s for N copies, 1 or 2 threads, each physics backend.
 
-    python tools/bench_batched.py --out results/bench_batched.md
+    python -m tools.bench_batched --out results/bench_batched.md
 
 Env steps/s counts transitions (N per batched step). Scaling = steps/s with 2 threads over 1 thread for the
 same N and backend. The single-env `DrivingGymEnv` is measured in the same run as the reference.
@@ -17,10 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from mjdrive.envs import make_env  # noqa: E402
-from mjdrive.envs.batched import BatchedEnv  # noqa: E402
+from mjdrive.envs import make_env
+from mjdrive.envs.batched import BatchedEnv
 
 CRUISE = np.array([0.4, 0.0, 0.0], np.float32)  # throttle, steer, brake
 
@@ -92,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
         f"# BatchedEnv throughput ({args.task}; {platform.machine()}, {os.cpu_count()} cores, "
         f"python {platform.python_version()})",
         "",
-        f"Command: `python tools/bench_batched.py {' '.join(argv if argv is not None else sys.argv[1:])}`",
+        f"Command: `python -m tools.bench_batched {' '.join(argv if argv is not None else sys.argv[1:])}`",
         "",
         "| observation | backend | N | steps/s, 1 thread | steps/s, 2 threads | scaling 2/1 "
         "| vs single env |",

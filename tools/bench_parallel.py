@@ -1,6 +1,6 @@
 """Scale-out throughput: evaluation and training collection in this process, over 1 and 2 worker processes.
 
-    python tools/bench_parallel.py --out results/bench_parallel.md
+    python -m tools.bench_parallel --out results/bench_parallel.md
 
 Evaluation: `mjdrive.agents.evaluate.evaluate` of a committed roundabout SAC (features, camera) for the same episodes at
 workers 0 (this process), 1 and 2; env steps per wall second, worker start-up included, and a check that the
@@ -22,13 +22,11 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from mjdrive.agents.algorithms import agent_class  # noqa: E402
-from mjdrive.agents.config import apply_overrides, load_config  # noqa: E402
-from mjdrive.agents.env_factory import make_training_env  # noqa: E402
-from mjdrive.agents.evaluate import evaluate  # noqa: E402
-from mjdrive.envs.fanout import fan_out  # noqa: E402
+from mjdrive.agents.algorithms import agent_class
+from mjdrive.agents.config import apply_overrides, load_config
+from mjdrive.agents.env_factory import make_training_env
+from mjdrive.agents.evaluate import evaluate
+from mjdrive.envs.fanout import fan_out
 
 ROOT = Path(__file__).resolve().parents[1]
 EVAL_CASES = {  # observation -> committed checkpoint
@@ -146,7 +144,7 @@ def ratio(a: float, b: float) -> str:
 
 def report(evals: dict, trains: dict, args: argparse.Namespace, load_before: str, load_after: str,
            wall: float, busy: str) -> str:
-    command = "python tools/bench_parallel.py " + shlex.join(sys.argv[1:])
+    command = "python -m tools.bench_parallel " + shlex.join(sys.argv[1:])
     lines = [
         f"# Scale-out throughput ({platform.machine()}, {os.cpu_count()} cores, python "
         f"{platform.python_version()}, MUJOCO_GL={os.environ.get('MUJOCO_GL', '-')})",

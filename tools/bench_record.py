@@ -1,6 +1,6 @@
 """Cost of recording: env throughput with and without `RecordEpisodes` (no camera images unless asked).
 
-    python tools/bench_record.py --tasks waypoints/straight waypoints/random_routes --out results/bench_record.md
+    python -m tools.bench_record --tasks waypoints/straight waypoints/random_routes --out results/bench_record.md
 
 Both runs drive the same env instance with the pure-pursuit driver; only the time inside reset/step is
 counted (the policy is excluded), episodes included (file open, road scene, summary, rename). Rounds of
@@ -85,7 +85,7 @@ def main() -> None:
     lines = [
         f"# Recording cost ({platform.processor() or platform.machine()}, mujoco {mujoco.__version__}, one thread)",
         "",
-        f"`python tools/bench_record.py --tasks {' '.join(args.tasks)} --rounds {args.rounds} "
+        f"`python -m tools.bench_record --tasks {' '.join(args.tasks)} --rounds {args.rounds} "
         f"--seconds {args.seconds:g} --camera-every {args.camera_every}` ({args.rounds} alternating rounds of "
         f"{args.seconds:g} CPU-s of env time per mode, medians; camera images "
         f"{f'every {args.camera_every} steps' if args.camera_every else 'off'}).",

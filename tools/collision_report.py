@@ -6,7 +6,7 @@ greedy policy and, at the contact, the road user hit is reported: its kind, its 
 both speeds 0.2 s (the step before the contact, which stops the ego against a mocap road user) and 1 s
 before [m/s]:
 
-    python tools/collision_report.py results/checkpoints/sac_camera_state_demos_ft_roundabout_122k.pt \\
+    python -m tools.collision_report results/checkpoints/sac_camera_state_demos_ft_roundabout_122k.pt \\
         --eval runs/eval/ft_fail_d160.json
 
 Writes a markdown table to stdout (and OUT.md with --out); `--frames DIR` also saves what the agent saw in the
@@ -18,18 +18,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from collections import deque
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from mjdrive.agents.evaluate import load_agent  # noqa: E402
-from mjdrive.envs import make_env  # noqa: E402
-from mjdrive.roads.geometry import wrap_angle  # noqa: E402
-from mjdrive.suite import split_task  # noqa: E402
+from mjdrive.agents.evaluate import load_agent
+from mjdrive.envs import make_env
+from mjdrive.roads.geometry import wrap_angle
+from mjdrive.suite import split_task
 
 HISTORY = 5  # [steps] 1 s at 5 Hz
 FRAMES = 8  # [steps] of camera images in a --frames strip (1.6 s)

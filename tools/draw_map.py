@@ -1,6 +1,6 @@
 """Top view of the study-002 concatenated map (Fig. 8): lanes, markings, give-way lines, the ego's route
 (blue dots), the tactical trajectory's scenario starts and ends (red points) and the conflict zones on the
-route (orange). Usage: python3 tools/draw_map.py [--out docs/urban_map.png] [--dpi 110]
+route (orange). Usage: python -m tools.draw_map [--out docs/urban_map.png] [--dpi 110]
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 and throughput at several physics timesteps, in one run (progress on stderr, a markdown report on stdout
 or --out).
 
-    python tools/physics_dt.py --dts 0.002 0.003 0.004 0.005 0.008 0.01 --out runs/physics_dt.md
+    python -m tools.physics_dt --dts 0.002 0.003 0.004 0.005 0.008 0.01 --out runs/physics_dt.md
 
 Sections (--sections, all by default):
   vehicle     for both cars, control at 20 Hz (the nearest whole number of steps): full braking from 50 km/h
@@ -417,7 +417,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     start = time.perf_counter()
     lines = [f"# Physics step: measurements ({platform.machine()}, mujoco {mujoco.__version__})", "",
-             "`python tools/physics_dt.py " + " ".join(sys.argv[1:] if argv is None else argv) + "`", ""]
+             "`python -m tools.physics_dt " + " ".join(sys.argv[1:] if argv is None else argv) + "`", ""]
     # the tasks need whole physics steps per traffic chunk (0.02 s) and per control step (0.1 s, 0.2 s)
     task_dts = [dt for dt in args.dts if all(abs(p / dt - round(p / dt)) < 1e-6 for p in (CHUNK, 0.1, 0.2))]
     for section in args.sections:

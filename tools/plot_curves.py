@@ -1,6 +1,6 @@
 """Learning curves from runs' episodes.csv: episode return (and route completion) vs episodes, as PNG.
 
-    python tools/plot_curves.py runs/ppo_straight runs/sac_straight --labels PPO SAC --out results/curves.png
+    python -m tools.plot_curves runs/ppo_straight runs/sac_straight --labels PPO SAC --out results/curves.png
 
 Needs matplotlib (`pip install -e .[plot]`). The line is a moving average over `--window` episodes; the
 faint band behind it is the raw per-episode value.

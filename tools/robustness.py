@@ -1,6 +1,6 @@
 """Bad inputs at every entry point and the error each gives: the table in results/robustness.md.
 
-    python tools/robustness.py --out results/robustness.md
+    python -m tools.robustness --out results/robustness.md
 
 Each case is what a user could type (task keywords through `suite.load` and `gymnasium.make`, arguments of
 every `mjdrive` subcommand, files given as checkpoints and logs) with a fragment of the error it must give.
@@ -287,7 +287,7 @@ def markdown(results: list[tuple[Case, Outcome]]) -> str:
         "# Bad inputs and the errors they give",
         "",
         "Every row is a bad input tried at one entry point and the error mjdrive gives today, produced by",
-        "`python tools/robustness.py --out results/robustness.md`; `tests/test_robustness.py` runs the same cases.",
+        "`python -m tools.robustness --out results/robustness.md`; `tests/test_robustness.py` runs the same cases.",
         "Python entry points raise `ValueError` (task keywords: its subclass `mjdrive.ConfigError`); the command",
         "line prints one line on stderr and exits with status 2, without a traceback. A checkpoint whose pickle",
         "would run code is refused before anything in it runs (the cases check that its payload never ran).",

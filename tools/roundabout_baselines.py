@@ -2,7 +2,7 @@
 route, traffic ignored) and a careful privileged autopilot (traffic's own rules applied to the ego from
 ground truth: IDM, yielding with gap acceptance, crosswalks). Writes the study's Table 3 columns.
 
-    python tools/roundabout_baselines.py --episodes 50 --out results/roundabout_baselines.md
+    python -m tools.roundabout_baselines --episodes 50 --out results/roundabout_baselines.md
 """
 
 from __future__ import annotations
@@ -15,11 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from mjdrive import suite  # noqa: E402
-from mjdrive.control.autopilot import Autopilot  # noqa: E402
-from mjdrive.tasks.roundabout import DENSITIES  # noqa: E402
+from mjdrive import suite
+from mjdrive.control.autopilot import Autopilot
+from mjdrive.tasks.roundabout import DENSITIES
 
 COLUMNS = ("episode_reward", "elapsed_time", "average_speed", "distance", "steps")
 
@@ -54,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     lines = [
         "# Roundabout baselines (scripted, privileged)",
         "",
-        f"`python tools/roundabout_baselines.py --episodes {args.episodes} --seed {args.seed}"
+        f"`python -m tools.roundabout_baselines --episodes {args.episodes} --seed {args.seed}"
         + (f" --out {args.out}`" if args.out else "`"),
         "",
         f"{args.episodes} episodes per density and policy (task seed {args.seed}; the same episodes for both "

@@ -3,7 +3,7 @@
 Each checkpoint runs N episodes per density (greedy actions, or sampled with --stochastic); optional training
 wall-clock from the run's episodes.csv.
 
-    python tools/roundabout_table3.py --episodes 50 \\
+    python -m tools.roundabout_table3 --episodes 50 \\
         --agent SAC results/checkpoints/sac_camera_roundabout.pt results/roundabout/sac_camera_episodes.csv \\
         --agent DQN results/checkpoints/dqn_camera_roundabout.pt --out results/roundabout/table3
 
@@ -23,13 +23,11 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from mjdrive.agents.checkpoints import load_checkpoint  # noqa: E402
-from mjdrive.agents.ensemble import describe  # noqa: E402
-from mjdrive.agents.evaluate import evaluate  # noqa: E402
-from mjdrive.config import parse_task_kwargs  # noqa: E402
-from mjdrive.tasks.roundabout import DENSITIES  # noqa: E402
+from mjdrive.agents.checkpoints import load_checkpoint
+from mjdrive.agents.ensemble import describe
+from mjdrive.agents.evaluate import evaluate
+from mjdrive.config import parse_task_kwargs
+from mjdrive.tasks.roundabout import DENSITIES
 
 # Table 3 of the study (Ben Elallid et al. 2024): density -> (avg reward, time s, speed m/s, distance m,
 # steps, success %, collision %)
@@ -134,7 +132,7 @@ def _tables(args: argparse.Namespace, task_kwargs: dict, argv: list[str] | None)
         training.append(line + ".")
     paper_rows = [f"| {name} (paper) | {level} | " + " | ".join(str(v) for v in values) + " | - | - |"
                   for name, levels in PAPER.items() for level, values in levels.items()]
-    command = "python tools/roundabout_table3.py " + shlex.join(sys.argv[1:] if argv is None else argv)
+    command = "python -m tools.roundabout_table3 " + shlex.join(sys.argv[1:] if argv is None else argv)
     policy = "sampled-action (stochastic policy)" if args.stochastic else "greedy"
     lines = [
         "# Roundabout (study 000), Table 3: trained agents at every density",

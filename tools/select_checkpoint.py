@@ -3,7 +3,7 @@
 Success swings by +-10 points between checkpoints 10k steps apart, so the reported checkpoint is chosen on
 separate seeds (default 20000..., the Table 3 tool uses 10000...) and then tested on the table's seeds:
 
-    python tools/select_checkpoint.py runs/sac_rb_camera_state --first 200000 --episodes 40 \\
+    python -m tools.select_checkpoint runs/sac_rb_camera_state --first 200000 --episodes 40 \\
         --export results/checkpoints/sac_camera_state_roundabout.pt \\
         --out results/roundabout/sac_camera_state_selection/summary
 
@@ -25,10 +25,8 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from mjdrive.agents.evaluate import evaluate  # noqa: E402
-from mjdrive.agents.train import export_policy  # noqa: E402
+from mjdrive.agents.evaluate import evaluate
+from mjdrive.agents.train import export_policy
 
 
 def run_checkpoints(run_dir: Path, first: int = 0, last: int | None = None) -> list[tuple[int, Path]]:
@@ -100,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.export:
         export_policy(best["checkpoint"], args.export)
 
-    command = "python tools/select_checkpoint.py " + shlex.join(sys.argv[1:] if argv is None else argv)
+    command = "python -m tools.select_checkpoint " + shlex.join(sys.argv[1:] if argv is None else argv)
     lines = [f"# Checkpoint selection: {args.run_dir}", "", f"`{command}`", "",
              f"{args.episodes} greedy episodes per checkpoint and task on {best['task']}, seeds "
              f"{args.seed}...{args.seed + args.episodes - 1}"
