@@ -355,11 +355,10 @@ def _flow(text: str) -> Any:
     return text
 
 
-def _split_items(inner: str) -> list[str] | None:
-    """The comma-separated items (stripped) of a flow list's or mapping's inside; None if its brackets or
-    quotes do not pair up."""
-    items, depth, quote, start = [], 0, "", 0
-    for i, char in enumerate(inner):
+def _top_level(text: str) -> list[int] | None:
+    """Indices of the characters of `text` outside quotes and brackets; None if those do not pair up."""
+    out, depth, quote = [], 0, ""
+    for i, char in enumerate(text):
         if quote:
             quote = "" if char == quote else quote
         elif char in "'\"":
@@ -370,12 +369,19 @@ def _split_items(inner: str) -> list[str] | None:
             depth -= 1
             if depth < 0:
                 return None
-        elif char == "," and depth == 0:
-            items.append(inner[start:i].strip())
-            start = i + 1
-    if depth or quote:
+        elif depth == 0:
+            out.append(i)
+    return None if depth or quote else out
+
+
+def _split_items(inner: str) -> list[str] | None:
+    """The comma-separated items (stripped) of a flow list's or mapping's inside; None if its brackets or
+    quotes do not pair up."""
+    top = _top_level(inner)
+    if top is None:
         return None
-    items.append(inner[start:].strip())
+    cuts = [-1] + [i for i in top if inner[i] == ","] + [len(inner)]
+    items = [inner[a + 1:b].strip() for a, b in zip(cuts[:-1], cuts[1:], strict=True)]
     if not items[-1]:  # `[]`, or `[a, b,]`: a trailing comma adds nothing
         items.pop()
     return items
@@ -383,16 +389,7 @@ def _split_items(inner: str) -> list[str] | None:
 
 def _key_value(item: str) -> tuple[str, str]:
     """A flow mapping's `key: value` item split at its first colon followed by a space (or ending it)."""
-    depth, quote = 0, ""
-    for i, char in enumerate(item):
-        if quote:
-            quote = "" if char == quote else quote
-        elif char in "'\"":
-            quote = char
-        elif char in "[{":
-            depth += 1
-        elif char in "]}":
-            depth -= 1
-        elif char == ":" and depth == 0 and (i + 1 == len(item) or item[i + 1] == " "):
+    for i in _top_level(item) or []:
+        if item[i] == ":" and (i + 1 == len(item) or item[i + 1] == " "):
             return item[:i].strip(), item[i + 1:].strip()
     return item, ""
