@@ -63,6 +63,19 @@ class Progress(tqdm):
             if time.time() - self.last_print_t >= interval:
                 self.refresh()
 
+    def __iter__(self):
+        """Iterate through `update()`: tqdm's own loop keeps the count in a local and assumes nothing else
+        prints, so a heartbeat redraw between its updates made it count steps twice (229/228)."""
+        if self.disable:
+            yield from self.iterable
+            return
+        try:
+            for obj in self.iterable:
+                yield obj
+                self.update()
+        finally:
+            self.close()
+
     def refresh(self, nolock: bool = False, lock_args: Any = None) -> None:
         super().refresh(nolock=nolock, lock_args=lock_args)
         self.last_print_t, self.last_print_n = time.time(), self.n

@@ -47,6 +47,21 @@ def test_progress_writes_plain_lines_with_a_total_and_keeps_talking_during_a_lon
     assert sum("1/3" in line for line in lines) >= 2, lines  # the heartbeat spoke during the long step
 
 
+def test_progress_over_an_iterable_never_counts_past_its_total(monkeypatch):
+    import re
+
+    from mjdrive import progress
+
+    monkeypatch.setattr(progress, "PLAIN_INTERVAL", 0.02)  # heartbeat redraws between the loop's own updates
+    monkeypatch.setattr(progress, "HEARTBEAT", 0.005)
+    for _ in range(5):
+        stream = io.StringIO()
+        for _ in Progress(range(200), desc="work", unit="step", file=stream, mininterval=0.02):
+            time.sleep(0.001)
+        counts = [int(n) for n in re.findall(r"work: (\d+)/", stream.getvalue())]
+        assert max(counts) == counts[-1] == 200 and "/?" not in stream.getvalue(), stream.getvalue()
+
+
 def test_a_slow_start_is_announced_and_a_quick_one_is_not():
     from mjdrive import progress
 
