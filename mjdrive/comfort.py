@@ -32,7 +32,6 @@ import math
 from dataclasses import dataclass, fields
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 WINDOW_S = 0.5  # [s] Savitzky-Golay window
 POLYORDER = 2  # order of the local polynomial fits
@@ -145,6 +144,8 @@ def acceleration_profile(
     w = savgol_window(n, dt, window_s, polyorder)
     if w == 0:
         return AccelerationProfile(time, speed, *(np.full(n, np.nan) for _ in range(4)), window=0)
+    from scipy.signal import savgol_filter  # here, not at the top: importing scipy.signal takes ~0.5 s
+
     a_xy = savgol_filter(v, w, polyorder, deriv=1, delta=dt, axis=0)  # [m/s^2] world frame
     a = np.stack([np.einsum("ij,ij->i", a_xy, heading), np.einsum("ij,ij->i", a_xy, left)])  # (2, N)
     jerk = savgol_filter(a, w, polyorder, deriv=1, delta=dt, axis=1)  # [m/s^3] (2, N)
