@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
+from tools.report import publish
 from tools.urban_table2 import run
 
 TASKS = ("roundabout", "lane_change", "crossroad", "merge")
@@ -50,12 +50,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     results = {task: run(task, args.policy, args.episodes, args.seed) for task in args.tasks}
     text = markdown(results, args.episodes, args.seed, args.policy)
-    if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(text)
-        print(f"wrote {args.out}")
-    else:
-        print(text)
+    publish(text, args.out)
     return 0
 
 

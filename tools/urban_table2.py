@@ -12,13 +12,13 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
 from mjdrive.envs import make_env
 from mjdrive.envs.fanout import fan_out
 from mjdrive.policies import POLICIES, make_policy
+from tools.report import publish
 
 PAPER = {"Ours (paper, hybrid DRL)": (95.76, 4.37, 6.20, 3.33, 76.85, 7.60),
          "CARLA Autopilot (paper)": (100.0, 8.63, 11.94, 2.98, 140.23, 2.75)}
@@ -97,12 +97,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--workers must be >= 0, got {args.workers}")
     rows = run(args.task, args.policy, args.episodes, args.seed, args.workers, args.ray)
     text = markdown(args.task, args.policy, rows, args.seed)
-    if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(text)
-        print(f"wrote {args.out}")
-    else:
-        print(text)
+    publish(text, args.out)
     return 0
 
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -22,6 +21,7 @@ from mjdrive.roads.conflicts import CROSSING
 from mjdrive.roads.urban import concatenated
 from mjdrive.traffic import overlapping_pairs
 from mjdrive.traffic.urban import default_counts, urban_traffic
+from tools.report import publish
 
 MAPS = {"roundabout": ("roundabout",), "lane_change": ("road",), "crossroad": ("crossroad",),
         "merge": ("merge",), "concatenated": ("roundabout", "road", "crossroad", "merge")}
@@ -180,12 +180,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{result['stop_free']:.1f} s, any stop {result['stop_any']:.1f} s "
                   f"({time.perf_counter() - start:.0f} s)", file=sys.stderr, flush=True)
     text = report(results, args.minutes, args.seeds)
-    if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(text)
-        print(f"wrote {args.out}")
-    else:
-        print(text)
+    publish(text, args.out)
     bad = any(r["overlaps"] or r["stop_free"] > 30.0 for runs in results.values() for r in runs)
     return 1 if bad else 0
 
