@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import copy
 import json
-import re
 from pathlib import Path
 from typing import Any
 
-from mjdrive.config import parse_value
+from mjdrive.config import parse_value, parse_yaml
 
 CONFIG_DIR = Path(__file__).resolve().parent / "configs"
 
@@ -28,20 +27,6 @@ def load_config(name_or_path: str | Path) -> dict[str, Any]:
     if path.suffix == ".json":
         return json.loads(text)
     return parse_yaml(text)
-
-
-def parse_yaml(text: str) -> Any:
-    """yaml.safe_load, except that 1e-4 is a float (YAML 1.1 reads it as a string; Adam then fails on it)."""
-    import yaml
-
-    class Loader(yaml.SafeLoader):
-        pass
-
-    Loader.add_implicit_resolver("tag:yaml.org,2002:float", SCIENTIFIC, list("-+0123456789."))
-    return yaml.load(text, Loader=Loader)  # a SafeLoader subclass: safe
-
-
-SCIENTIFIC = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")
 
 
 def apply_overrides(config: dict, pairs: list[str]) -> dict:

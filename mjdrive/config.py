@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from typing import Any, Union
 
 import numpy as np
+import yaml
 
 
 class ConfigError(ValueError):
@@ -296,24 +297,33 @@ def _default_text(value: Any) -> str:
 
 
 # --- values typed on the command line ------------------------------------------------------------------------
-_PLAIN: dict[str, Any] = {
-    "": None, "~": None, "null": None, "Null": None, "NULL": None,
-    "true": True, "True": True, "TRUE": True, "false": False, "False": False, "FALSE": False,
-    ".inf": math.inf, "+.inf": math.inf, "-.inf": -math.inf, ".nan": math.nan,
-}
-_INTEGER = re.compile(r"[-+]?\d+")
-_FLOAT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
+SCIENTIFIC = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+$")
+
+
+class _Loader(yaml.SafeLoader):
+    """yaml.SafeLoader (safe: plain data only) that also reads 1e-4 as a float (YAML 1.1 reads it as text)."""
+
+
+_Loader.add_implicit_resolver("tag:yaml.org,2002:float", SCIENTIFIC, list("-+0123456789."))
+
+
+def parse_yaml(text: str) -> Any:
+    """A YAML document as plain data (the learners' config files; `parse_value`'s fallback)."""
+    return yaml.load(text, Loader=_Loader)  # a SafeLoader subclass: never constructs objects
 
 
 def parse_value(text: str) -> Any:
     """A value typed on the command line (the VALUE of KEY=VALUE), one reading for every command and tool:
-    JSON where it parses; else YAML's flow forms, read without pyyaml (not in the core install): `[a, b]`
-    and `{key: value}` with unquoted items, quoted strings, true/True/false/False, `~` or nothing for null,
-    numbers such as `.5` and `1e-4`; anything else is the text itself (a string)."""
+    JSON where it parses, else YAML (`parse_yaml`: `[a, b]`, `{key: value}`, `~`, 1e-4, ...), else the text
+    itself (a string)."""
     try:
         return json.loads(text)
     except ValueError:
-        return _flow(text.strip())
+        pass
+    try:
+        return parse_yaml(text)
+    except yaml.YAMLError:
+        return text
 
 
 def parse_task_kwargs(pairs: Sequence[str]) -> dict[str, Any]:
@@ -325,71 +335,3 @@ def parse_task_kwargs(pairs: Sequence[str]) -> dict[str, Any]:
             raise ValueError(f"--task-kwarg expects KEY=VALUE, got {pair!r}")
         out[key] = parse_value(value)
     return out
-
-
-def _flow(text: str) -> Any:
-    """`parse_value` of a text that is not JSON (stripped)."""
-    if len(text) >= 2 and text[0] + text[-1] in ("[]", "{}"):
-        items = _split_items(text[1:-1])
-        if items is not None and text[0] == "[":
-            return [_flow(item) for item in items]
-        if items is not None:
-            out = {}
-            for item in items:
-                key, value = _key_value(item)
-                out[_flow(key)] = _flow(value)
-            return out
-    if len(text) >= 2 and text[0] == text[-1] == "'":
-        return text[1:-1].replace("''", "'")
-    if len(text) >= 2 and text[0] == text[-1] == '"':
-        try:
-            return json.loads(text)
-        except ValueError:
-            return text[1:-1]
-    if text in _PLAIN:
-        return _PLAIN[text]
-    if _INTEGER.fullmatch(text):
-        return int(text)
-    if _FLOAT.fullmatch(text):
-        return float(text)
-    return text
-
-
-def _top_level(text: str) -> list[int] | None:
-    """Indices of the characters of `text` outside quotes and brackets; None if those do not pair up."""
-    out, depth, quote = [], 0, ""
-    for i, char in enumerate(text):
-        if quote:
-            quote = "" if char == quote else quote
-        elif char in "'\"":
-            quote = char
-        elif char in "[{":
-            depth += 1
-        elif char in "]}":
-            depth -= 1
-            if depth < 0:
-                return None
-        elif depth == 0:
-            out.append(i)
-    return None if depth or quote else out
-
-
-def _split_items(inner: str) -> list[str] | None:
-    """The comma-separated items (stripped) of a flow list's or mapping's inside; None if its brackets or
-    quotes do not pair up."""
-    top = _top_level(inner)
-    if top is None:
-        return None
-    cuts = [-1] + [i for i in top if inner[i] == ","] + [len(inner)]
-    items = [inner[a + 1:b].strip() for a, b in zip(cuts[:-1], cuts[1:], strict=True)]
-    if not items[-1]:  # `[]`, or `[a, b,]`: a trailing comma adds nothing
-        items.pop()
-    return items
-
-
-def _key_value(item: str) -> tuple[str, str]:
-    """A flow mapping's `key: value` item split at its first colon followed by a space (or ending it)."""
-    for i in _top_level(item) or []:
-        if item[i] == ":" and (i + 1 == len(item) or item[i + 1] == " "):
-            return item[:i].strip(), item[i + 1:].strip()
-    return item, ""

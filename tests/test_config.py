@@ -217,14 +217,14 @@ def test_fuzz_every_task_gives_a_working_env_or_a_config_error():
 
 def test_a_command_line_value_reads_one_way_everywhere():
     """`--task-kwarg` (run, drive, eval, the tools) and train's overrides read VALUE alike: JSON, else YAML's
-    flow forms (read without pyyaml), else the text itself."""
+    else YAML, else the text itself."""
     cases = {"3": 3, "-2": -2, "1.5": 1.5, "1e-4": 1e-4, ".5": 0.5, "true": True, "True": True, "FALSE": False,
              "null": None, "~": None, "": None, "camera": "camera", "roundabout/d120": "roundabout/d120",
-             "yes": "yes", '"a b"': "a b", "'it''s'": "it's", '["depth", "range"]': ["depth", "range"],
+             "yes": True, '"a b"': "a b", "'it''s'": "it's", '["depth", "range"]': ["depth", "range"],
              "[depth, range]": ["depth", "range"], "[32,32]": [32, 32], "[]": [], "[a, 'b, c',]": ["a", "b, c"],
              "[1, [2, 3]]": [1, [2, 3]], '{"car": 5}': {"car": 5},
              "{channels: [8, 16], pool: none, flatten: true}": {"channels": [8, 16], "pool": "none", "flatten": True},
-             "[1, 2": "[1, 2", "a: b": "a: b"}
+             "[1, 2": "[1, 2", "a: b": {"a": "b"}, "{a": "{a"}
     for text, value in cases.items():
         assert parse_value(text) == value and type(parse_value(text)) is type(value), text
     assert parse_task_kwargs(["time_limit=3", "sensors=[depth]", "name=a=b"]) == {
