@@ -194,8 +194,8 @@ def bench_traffic_task(domain: str, task: str, seconds: float = 3.0, image_size:
     model, dt, n_sub = env.physics.model.ptr, env.physics.timestep(), env.n_sub_steps
     data = mujoco.MjData(model)
     src = env.physics.data
-    for name in ("qpos", "qvel", "ctrl", "mocap_pos", "mocap_quat"):
-        getattr(data, name)[:] = getattr(src, name)
+    for field in ("qpos", "qvel", "ctrl", "mocap_pos", "mocap_quat"):  # not `name`: the ticks' task name
+        getattr(data, field)[:] = getattr(src, field)
     mujoco.mj_forward(model, data)
     traffic = env.task.traffic
 

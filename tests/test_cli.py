@@ -72,6 +72,8 @@ def test_bench_with_tiny_settings_prints_and_writes_its_tables(tmp_path):
                    if re.fullmatch(r"[\d,.]+[%x]?", cell)]
         assert len(numbers) >= 8 and all(n > 0 for n in numbers), row
     assert int(roundabout[0][1]) == 22  # d120's road users
+    progress = [line for line in done.stderr.splitlines() if line.startswith("bench: ")]
+    assert progress[-1].endswith("roundabout/d120: camera env]"), progress  # each part named by its task
 
 
 def test_train_a_few_hundred_steps_writes_a_run_folder_that_eval_reads(tmp_path):
