@@ -373,11 +373,11 @@ def cmd_eval(args) -> int:
         raise ValueError("--live streams the episode logs of this process: drop --no-record, --workers and --ray")
 
     _say_when_not_a_terminal("mjdrive eval: loading torch and checking the checkpoint ...")
-    with Starting("mjdrive eval: loading torch and checking the checkpoint", terminal_only=True):
+    with Starting("mjdrive eval: loading torch and checking the checkpoint", stdout_in_logs=True):
         from mjdrive.agents.checkpoints import load_checkpoint
 
         load_checkpoint(args.checkpoint)  # a bad file is a one-line error, before any status line in a log
-    with Starting("mjdrive eval: loading the policy and the env"):
+    with Starting("mjdrive eval: loading the policy and the env", delay=0.0):  # a slow start goes on
         from mjdrive.agents.evaluate import eval_command
 
         return eval_command(args)
@@ -387,7 +387,7 @@ def cmd_ensemble(args) -> int:
     from mjdrive.progress import Starting
 
     _say_when_not_a_terminal("mjdrive ensemble: loading torch and the members ...")
-    with Starting("mjdrive ensemble: loading torch and the members", terminal_only=True):
+    with Starting("mjdrive ensemble: loading torch and the members", stdout_in_logs=True):
         from mjdrive.agents.ensemble import ensemble_command
 
         return ensemble_command(args)

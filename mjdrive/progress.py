@@ -104,14 +104,15 @@ _STARTING: Progress | None = None  # the open `Starting` status, closed by the n
 class Starting(Progress):
     """'COMMAND: loading ... [elapsed]' while a command loads (torch, a checkpoint, its envs), shown only when
     that takes more than `delay` s (so a quick one-line error stays one line) and gone as soon as the
-    command's own progress bar starts or the command ends. `terminal_only`: not written to a log or pipe
-    (for a wait that may end in a user's mistake: on a terminal the status line is erased before the error,
-    in a log it would stay above it)."""
+    command's own progress bar starts or the command ends. `stdout_in_logs`: when the stream is not a terminal
+    (a log or pipe), write the lines to stdout instead (for a wait that may end in a user's mistake: on a
+    terminal the status line is erased before the error; in a log stderr keeps the error to one line, and the
+    wait is still heard, never silent for more than `delay` + PLAIN_INTERVAL)."""
 
-    def __init__(self, desc: str, delay: float = 1.0, terminal_only: bool = False, **kwargs):
+    def __init__(self, desc: str, delay: float = 1.0, stdout_in_logs: bool = False, **kwargs):
         global _STARTING
-        if terminal_only and not is_terminal(kwargs.get("file") or sys.stderr):
-            kwargs["disable"] = True
+        if stdout_in_logs and not is_terminal(kwargs.get("file") or sys.stderr):
+            kwargs["file"] = sys.stdout
         super().__init__(desc=desc, bar_format="{desc} [{elapsed}]", delay=delay, leave=False, **kwargs)
         _STARTING = self
 

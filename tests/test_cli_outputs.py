@@ -62,7 +62,7 @@ def test_progress_over_an_iterable_never_counts_past_its_total(monkeypatch):
         assert max(counts) == counts[-1] == 200 and "/?" not in stream.getvalue(), stream.getvalue()
 
 
-def test_a_slow_start_is_announced_and_a_quick_one_is_not():
+def test_a_slow_start_is_announced_and_a_quick_one_is_not(monkeypatch):
     from mjdrive import progress
 
     quick = io.StringIO()
@@ -73,10 +73,11 @@ def test_a_slow_start_is_announced_and_a_quick_one_is_not():
     starting = progress.Starting("cmd: loading", delay=0.3, file=slow)
     time.sleep(0.3 + PLAIN_INTERVAL + 0.3)
     assert slow.getvalue().startswith("cmd: loading [00:0")
-    log = io.StringIO()  # a wait that may end in a user's mistake says nothing in a log
-    with progress.Starting("cmd: checking", delay=0.0, terminal_only=True, file=log):
+    log, out = io.StringIO(), io.StringIO()  # a wait that may end in a user's mistake: stderr keeps quiet in a
+    monkeypatch.setattr(sys, "stdout", out)  # log (the error stays one line), stdout hears the wait
+    with progress.Starting("cmd: checking", delay=0.0, stdout_in_logs=True, file=log):
         time.sleep(PLAIN_INTERVAL + 0.3)
-    assert log.getvalue() == ""
+    assert log.getvalue() == "" and out.getvalue().startswith("cmd: checking [00:0")
     with Progress(total=1, desc="work", file=io.StringIO()) as bar:  # the real progress takes over
         assert starting.disable or progress._STARTING is None
         bar.update()
