@@ -216,6 +216,8 @@ def train_command(args) -> int:
         return 130
     finally:
         signal.signal(signal.SIGTERM, previous)
-    print(f"trained {config['algo']} on {config['task']} for {config['steps']:,} env steps in "
+    steps = load_checkpoint(policy)["step"]  # PPO rounds up to whole rollouts (it said so when it began)
+    asked = "" if steps == config["steps"] else f" (asked {config['steps']:,})"
+    print(f"trained {config['algo']} on {config['task']} for {steps:,} env steps{asked} in "
           f"{time.perf_counter() - start:.0f} s; wrote {out}/ (policy: {policy})")
     return 0

@@ -351,7 +351,7 @@ def cmd_bench(args) -> int:
 def cmd_train(args) -> int:
     from mjdrive.progress import Starting
 
-    with Starting("mjdrive train: loading torch, the config and the envs"):
+    with Starting("mjdrive train: loading torch, the config and the envs", delay=0.3):
         from mjdrive.agents.train import train_command  # needs the `learn` extra (torch, rsl-rl)
 
         return train_command(args)

@@ -49,6 +49,7 @@ class Progress(tqdm):
             kwargs.setdefault("dynamic_ncols", True)
         kwargs.setdefault("miniters", 1)
         self._stop = threading.Event()
+        self._shown = False  # drawn once (a bar with a `delay` is first drawn by the heartbeat once it passed)
         super().__init__(iterable, file=file, **kwargs)
         self._heartbeat = None
         if not self.disable:
@@ -60,7 +61,7 @@ class Progress(tqdm):
         while not self._stop.wait(HEARTBEAT):
             if time.time() - self.start_t < self.delay:
                 continue
-            if time.time() - self.last_print_t >= interval:
+            if not self._shown or time.time() - self.last_print_t >= interval:
                 self.refresh()
 
     def __iter__(self):
@@ -78,6 +79,7 @@ class Progress(tqdm):
 
     def refresh(self, nolock: bool = False, lock_args: Any = None) -> None:
         super().refresh(nolock=nolock, lock_args=lock_args)
+        self._shown = True
         self.last_print_t, self.last_print_n = time.time(), self.n
 
     def display(self, msg: str | None = None, pos: int | None = None) -> None:

@@ -83,6 +83,16 @@ def test_a_slow_start_is_announced_and_a_quick_one_is_not(monkeypatch):
         bar.update()
 
 
+def test_a_delayed_status_shows_once_its_delay_passed_not_a_plain_interval_later():
+    from mjdrive import progress
+
+    stream = io.StringIO()
+    with progress.Starting("cmd: loading", delay=0.2, file=stream):
+        time.sleep(0.2 + 2 * progress.HEARTBEAT)
+        shown = stream.getvalue()
+    assert shown.startswith("cmd: loading [00:00]") and PLAIN_INTERVAL > 0.2 + 2 * progress.HEARTBEAT
+
+
 def test_progress_on_a_terminal_redraws_in_place():
     stream = io.StringIO()
     with Progress(total=2, desc="work", file=stream, plain=False) as bar:
