@@ -301,6 +301,8 @@ def test_killed_writer_and_two_processes(tmp_path):
         for process in (victim, survivor):
             if process.poll() is None:
                 process.kill()
+                process.wait(timeout=30)
+            process.stdout.close()  # the victim's pipe was never read to the end (a ResourceWarning otherwise)
     spec = EnvSpec("waypoints", "straight")
     complete = sorted(tmp_path.glob("*.mcap"))
     parts = sorted(tmp_path.glob("*.mcap.part"))
