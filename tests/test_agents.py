@@ -420,7 +420,8 @@ def test_episode_log_is_flushed_as_episodes_end_and_resume_drops_later_rows(tmp_
     run.add_steps(20, [None, *ended(1)])
     rows = (tmp_path / "episodes.csv").read_text().splitlines()
     assert len(rows) == 1 + 3  # readable before close: a killed run keeps them
-    del run  # killed: never closed
+    run._csv_file.close()  # killed: Run.close never ran; the OS closed the file (flushed rows only)
+    del run
     resumed = Run(tmp_path, config, total_steps=100, start_step=20, start_episode=2, progress=False,
                   tensorboard=False)
     resumed.add_steps(20, ended(1))

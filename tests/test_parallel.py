@@ -233,6 +233,7 @@ def test_stopping_a_parallel_evaluation_leaves_no_process_behind(stop):
     else:
         proc.kill()
         assert proc.wait(timeout=30) == -signal.SIGKILL
+    proc.stderr.close()
     deadline = time.monotonic() + 15
     while group() and time.monotonic() < deadline:
         time.sleep(0.2)
