@@ -216,3 +216,4 @@ def test_a_waiting_minor_road_car_gets_its_turn_within_half_a_minute():
     traffic.reset(np.random.default_rng(0))
     overlaps, worst, _ = free_run(traffic, 240.0)
     assert overlaps == 0 and worst < 30.0
+

@@ -36,6 +36,7 @@ MERGE_RANGE = 60.0  # [m] agents farther from a merge point than this do not tak
 CLEAR_ACCEL = 2.0  # [m/s^2] a yielding vehicle's acceleration through the zone, for its time to clear it
 CHANGING_RADIUS = 8.0  # [m] a vehicle changing lane this close to a zone's point occupies it
 HELD_SPEED = 1.0  # [m/s] a vehicle slower than this before its give-way line is waiting
+STANDING_ROOM = 0.5  # [m] a merging vehicle goes ahead of a standing one behind it at least this far
 AT_LINE = 3.0  # [m] a waiting vehicle this close to its give-way line is first in line
 TURN_WAIT = 3.0  # [s] a priority vehicle first in line this long gets its turn
 CLAIM_DECEL = 4.0  # [m/s^2] a priority vehicle stops for a vehicle past its patience if it can at this braking
@@ -251,7 +252,9 @@ def conflict_columns(t: Traffic, ctx: dict, f: dict) -> tuple[np.ndarray, np.nda
     leader_speed = v[np.argmin(spacing, axis=1)] if len(s) else np.zeros(len(pf))
     behind = others & ~timed[:, None] & tr(near) & (d_them_p >= d_me[:, None])
     room = np.where(behind, d_them_p - d_me[:, None] - length_me[:, None], np.inf)  # (P, A) [m]
-    needed = cfg.min_gap + v[None] * cfg.critical_gap_merge  # (1, A) [m] the agent behind's headway
+    # [m] the agent behind's headway; one standing still only needs the follower not to touch it (the follower
+    # moves away from it, and it may be standing for the follower: waiting for it would never end)
+    needed = np.where(v >= HELD_SPEED, cfg.min_gap + v * cfg.critical_gap_merge, STANDING_ROOM)[None]  # (1, A)
     # Only the nearest agent behind matters (the follower's follower after the merge; the rest queue behind
     # it), and not if it is courteous: it keeps its distance to the follower, a virtual leader of its own.
     nearest = np.argmin(room, axis=1) if len(s) else np.zeros(len(pf), dtype=np.int64)  # (P,)
