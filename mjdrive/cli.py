@@ -377,7 +377,7 @@ def cmd_eval(args) -> int:
         from mjdrive.agents.checkpoints import load_checkpoint
 
         load_checkpoint(args.checkpoint)  # a bad file is a one-line error, before any status line in a log
-    with Starting("mjdrive eval: loading the policy and the env", delay=0.0):  # a slow start goes on
+    with Starting("mjdrive eval: loading the policy and the env", delay=0.0, stdout_in_logs=True):  # may still fail
         from mjdrive.agents.evaluate import eval_command
 
         return eval_command(args)
