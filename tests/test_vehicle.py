@@ -4,7 +4,6 @@ the logs written before the default changed); control at 20 Hz."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
 import mujoco
 import numpy as np
@@ -21,6 +20,7 @@ from mjdrive.vehicle import (
     commands_to_ctrl,
 )
 from mjdrive.world import PHYSICS_TIMESTEP
+from tools.physics_dt import drive
 
 DTS = sorted({PHYSICS_TIMESTEP, 0.002})  # [s] physics steps under test: the default and 2 ms
 CONTROL_PERIOD = 0.05  # [s] control at 20 Hz
@@ -50,24 +50,6 @@ def car(request) -> tuple[mujoco.MjModel, Vehicle]:
 def nsub(model: mujoco.MjModel) -> int:
     """Physics steps per control step of `model` (20 Hz)."""
     return int(round(CONTROL_PERIOD / model.opt.timestep))
-
-
-Policy = Callable[[float, mujoco.MjData], tuple[float, float, float]]
-
-
-def drive(model, data, vehicle: Vehicle, policy: Policy, seconds: float, log=None, until=None) -> float:
-    """Run the car under `policy(t, data) -> (throttle, steer, brake)` at 20 Hz; returns the elapsed time."""
-    t, n = 0.0, nsub(model)
-    control_dt = n * model.opt.timestep
-    for _ in range(int(round(seconds / control_dt))):
-        vehicle.apply(data, *policy(t, data))
-        mujoco.mj_step(model, data, n)
-        t += control_dt
-        if log is not None:
-            log(t, data)
-        if until is not None and until(data):
-            break
-    return t
 
 
 def tire_mu(model: mujoco.MjModel, vehicle: Vehicle) -> float:

@@ -65,15 +65,22 @@ def car_model(name: str, dt: float) -> tuple[mujoco.MjModel, Vehicle]:
     return model, Vehicle(model, model_name=name)
 
 
-def drive(model, data, veh: Vehicle, policy, seconds: float, nsub: int, each=None, until=None) -> float:
-    """Commands from `policy(data)` every nsub physics steps for `seconds`; returns the time driven [s]."""
-    t, period = 0.0, nsub * model.opt.timestep
-    while t < seconds - 1e-9:
-        veh.apply(data, *policy(data))
-        mujoco.mj_step(model, data, nsub)
-        t += period
-        if each is not None:
-            each(t, data)
+Policy = Callable[[float, mujoco.MjData], tuple[float, float, float]]
+
+
+def drive(model, data, vehicle: Vehicle, policy: Policy, seconds: float, log=None, until=None,
+          nsub: int | None = None) -> float:
+    """Run the car under `policy(t, data) -> (throttle, steer, brake)`, a command every `nsub` physics steps
+    (default: CONTROL_DT's worth) for `seconds`, calling `log(t, data)` after each and stopping early when
+    `until(data)`; returns the time driven [s] (the physics tests drive the car with it too)."""
+    n = substeps(model.opt.timestep, CONTROL_DT) if nsub is None else nsub
+    t, control_dt = 0.0, n * model.opt.timestep
+    for _ in range(int(round(seconds / control_dt))):
+        vehicle.apply(data, *policy(t, data))
+        mujoco.mj_step(model, data, n)
+        t += control_dt
+        if log is not None:
+            log(t, data)
         if until is not None and until(data):
             break
     return t
@@ -88,7 +95,7 @@ def vehicle_figures(name: str, dt: float) -> dict[str, float]:
     # full braking from 50 km/h
     data = mujoco.MjData(model)
     veh.reset(data, 0.0, 0.0, 0.0, 50 * KMH)
-    drive(model, data, veh, lambda d: (0.0, 0.0, 1.0), 4.0, nsub)
+    drive(model, data, veh, lambda t, d: (0.0, 0.0, 1.0), 4.0, nsub=nsub)
     theory = (50 * KMH) ** 2 / (2 * p.tire_mu * g)
     out["brake_m"] = veh.pose(data)[0]
     out["brake_err"] = out["brake_m"] / theory - 1
@@ -103,8 +110,8 @@ def vehicle_figures(name: str, dt: float) -> dict[str, float]:
                 x, y, yaw = veh.pose(d)
                 points.append((x - 0.5 * p.wheelbase * math.cos(yaw), y - 0.5 * p.wheelbase * math.sin(yaw)))
 
-        drive(model, data, veh, lambda d, s=steer: (min(1.0, max(0.0, 0.5 * (3.0 - veh.speed(d)))), s, 0.0), 16.0,
-              nsub, rear_axle)
+        drive(model, data, veh, lambda t, d, s=steer: (min(1.0, max(0.0, 0.5 * (3.0 - veh.speed(d)))), s, 0.0), 16.0,
+              rear_axle, nsub=nsub)
         xy = np.array(points)
         cx, cy, c = np.linalg.lstsq(np.c_[2 * xy, np.ones(len(xy))], (xy**2).sum(1), rcond=None)[0]
         out[f"circle_err_{steer}"] = math.sqrt(c + cx**2 + cy**2) / (p.wheelbase / math.tan(steer * p.max_steer)) - 1
@@ -113,13 +120,13 @@ def vehicle_figures(name: str, dt: float) -> dict[str, float]:
         data = mujoco.MjData(model)
         veh.reset(data, 3.0, -2.0, 0.7)
         start = data.xpos[veh.body_id].copy()
-        drive(model, data, veh, lambda d, b=brake: (0.0, 0.0, b), 10.0, nsub)
+        drive(model, data, veh, lambda t, d, b=brake: (0.0, 0.0, b), 10.0, nsub=nsub)
         out[f"creep_mm_{brake:.0f}"] = 1e3 * float(np.linalg.norm(data.xpos[veh.body_id] - start))
     # 0-50 km/h
     data = mujoco.MjData(model)
     veh.reset(data, 0.0, 0.0, 0.0)
-    out["t_0_50"] = drive(model, data, veh, lambda d: (1.0, 0.0, 0.0), 15.0, nsub,
-                          until=lambda d: veh.speed(d) >= 50 * KMH)
+    out["t_0_50"] = drive(model, data, veh, lambda t, d: (1.0, 0.0, 0.0), 15.0,
+                          until=lambda d: veh.speed(d) >= 50 * KMH, nsub=nsub)
     out["physics_ok"] = float(np.isfinite(data.qpos).all())
     return out
 
