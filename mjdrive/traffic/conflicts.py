@@ -189,11 +189,12 @@ def conflict_columns(t: Traffic, ctx: dict, f: dict) -> tuple[np.ndarray, np.nda
     # the line for TURN_WAIT already: then it is its turn (no stream of yielders starves it).
     before_line = (v[:, None] < HELD_SPEED) & (front_o <= table.other_stop[None] + COMMITTED)  # (A, R)
     at_line = table.other_stop[None] - front_o < AT_LINE
-    waited_long = np.append(t.stopped_time, 0.0)[:, None] >= TURN_WAIT  # (A, 1) (the ego: never)
+    waited_all = np.append(t.stopped_time, 0.0)  # (A,) [s] how long each agent has waited (the ego: never)
+    waited_long = waited_all[:, None] >= TURN_WAIT  # (A, 1)
     held = before_line & ~(at_line & waited_long)
     # Impatience: the critical gap shrinks to zero over `impatience` seconds of waiting (the gap must still
     # let the follower clear the zone before the priority agent arrives).
-    waited = np.append(t.stopped_time, 0.0)[np.minimum(me, t.nv)]  # (P,) [s] (the ego: never)
+    waited = waited_all[me]  # (P,) [s]
     critical = cfg.critical_gap_crossing * np.maximum(0.0, 1.0 - waited / cfg.impatience)
     # Past its patience a vehicle standing at its give-way line claims the zone: priority vehicles that can
     # still stop before their own line (braking at most CLAIM_DECEL) or stand before it stop there for it,
@@ -202,7 +203,7 @@ def conflict_columns(t: Traffic, ctx: dict, f: dict) -> tuple[np.ndarray, np.nda
     to_own_line = np.where(np.isfinite(to_own_line), to_own_line, -np.inf)
     can_stop = _can_stop(v[:, None], to_own_line)  # (A, R)
     can_stop[t.nv] = False
-    patient = np.append(t.stopped_time, 0.0)[:, None] >= cfg.impatience  # (A, 1) (the ego: never)
+    patient = waited_all[:, None] >= cfg.impatience  # (A, 1)
     claiming = before_line & at_line & patient & table.yields[table.partner][None]  # (A, R) on the other lane
     me_stop = table.stop[pr] - front_me  # (P,) [m] to the follower's own give-way line
     forcing = ((waited >= cfg.impatience) & (v_me < HELD_SPEED) & (me_stop < AT_LINE) & (me_stop >= -COMMITTED)
@@ -231,7 +232,6 @@ def conflict_columns(t: Traffic, ctx: dict, f: dict) -> tuple[np.ndarray, np.nda
     t_line_o = np.maximum(table.other_stop[None] - front_o, 0.0) / pace[:, None]  # (A, R) along the other
     waiting_o = np.isfinite(front_o) & ~inside & (front_o <= table.o_in[None]) & ~np.isfinite(offset[:, table.lane])
     # ... and of those at their lines, whoever has waited longer, then the lower row.
-    waited_all = np.append(t.stopped_time, 0.0)  # (A,) [s]
     longer = (waited_all[None] > waited[:, None]) | (
         (waited_all[None] == waited[:, None]) & (np.arange(len(s))[None] < me[:, None]))
     earlier = (tr(t_line_o) < t_line_me[:, None]) | ((tr(t_line_o) == t_line_me[:, None]) & longer)
