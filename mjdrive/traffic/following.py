@@ -3,11 +3,29 @@ stop lines) as columns of one gap table, and the IDM acceleration with a safety 
 
 from __future__ import annotations
 
+import functools
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mjdrive.traffic.conflicts import conflict_columns, courteous_agents
+from mjdrive.traffic import kernels
+from mjdrive.traffic.conflicts import (
+    AT_LINE,
+    CHANGING_RADIUS,
+    CLAIM_DECEL,
+    CLEAR_ACCEL,
+    COMMITTED,
+    EDGE_MARGIN,
+    HELD_SPEED,
+    MERGE_RANGE,
+    STANDING_ROOM,
+    STOP_MARGIN,
+    TURN_WAIT,
+    ApproachTable,
+    conflict_columns,
+    courteous_agents,
+)
+from mjdrive.traffic.kernels import KERNELS
 from mjdrive.traffic.lane_changes import ending_lanes
 from mjdrive.traffic.merges import merge_conflicts
 from mjdrive.traffic.pedestrians import occupied_crossings
@@ -32,7 +50,24 @@ def accelerations(t: Traffic, f: dict, ctx: dict) -> np.ndarray:
 
     Every obstacle of every follower is a column of one (F, columns) table of gaps [m] (bumper to
     obstacle, inf where none), obstacle speeds [m/s] and minimum gaps s0 [m]: path leaders, the corridor,
-    crosswalk stop lines, merge stop lines. IDM takes the most constraining one."""
+    crosswalk stop lines, merge stop lines. IDM takes the most constraining one. The table is reduced to
+    what IDM needs of it by `gap_summary` (numpy), or by the compiled kernel with the same numbers
+    (`kernels.gap_summary`, when numba is installed)."""
+    m = t.map
+    lane0 = np.maximum(f["path"][:, 0], 0)
+    vcurve, kappa = m.curve_speed(lane0, f["s"])
+    den = 2.0 * np.sqrt(f["a"] * f["b"])  # IDM's 2 sqrt(a b) [m/s^2]
+    summary = gap_summary_kernel if KERNELS else gap_summary
+    lead_gap, interaction, room, to_give_way = summary(t, f, ctx, kappa, den)
+    if len(f["rows"]) == t.nv:
+        t.lead_gap = lead_gap
+    return idm(t, f, ctx, vcurve, interaction, room, to_give_way)
+
+
+def gap_summary(t: Traffic, f: dict, ctx: dict, kappa: np.ndarray, den: np.ndarray):
+    """Every follower's gap table (F, columns) reduced to: the smallest gap [m], the largest IDM interaction
+    term (s*/gap)^2, the least stopping room [m] (gap - s0 + v_lead^2 / 2 max_decel) and the distance [m]
+    to its nearest give-way line still ahead (inf where none)."""
     m, cfg = t.map, t.config
     path, offset, s, v = f["path"], f["offset"], f["s"], f["v"]
     rows, length = f["rows"], f["length"]
@@ -56,8 +91,6 @@ def accelerations(t: Traffic, f: dict, ctx: dict) -> np.ndarray:
     lead[:, :c1] = ctx["v"][None]
 
     # 2. Anything in the corridor ahead (curvature-corrected): vehicles, the ego, pedestrians.
-    lane0 = np.maximum(path[:, 0], 0)
-    vcurve, kappa = m.curve_speed(lane0, s)
     c, sn = np.cos(f["yaw"])[:, None], np.sin(f["yaw"])[:, None]
     co, so = np.cos(yaw_o)[None], np.sin(yaw_o)[None]
     rx = xy_o[None, :, 0] - f["xy"][:, None, 0]
@@ -121,11 +154,84 @@ def accelerations(t: Traffic, f: dict, ctx: dict) -> np.ndarray:
         s0 = np.concatenate([s0, [cfg.stop_gap]])
 
     finite = gap < np.inf
-    t.lead_gap = gap.min(axis=1) if len(rows) == t.nv else t.lead_gap
-    s_star = s0[None] + np.maximum(0.0, (v * f["T"])[:, None] + v[:, None] * (v[:, None] - lead)
-                                   / (2.0 * np.sqrt(f["a"] * f["b"]))[:, None])
+    s_star = s0[None] + np.maximum(0.0, (v * f["T"])[:, None] + v[:, None] * (v[:, None] - lead) / den[:, None])
     interaction = np.where(finite, (s_star / np.maximum(gap, 0.05)) ** 2, 0.0).max(axis=1)
+    v_lead = np.maximum(lead, 0.0)
+    room = np.where(finite, gap - s0[None] + v_lead * v_lead / (2 * cfg.max_decel), np.inf).min(axis=1)
+    return gap.min(axis=1), interaction, room, to_give_way
 
+
+def gap_summary_kernel(t: Traffic, f: dict, ctx: dict, kappa: np.ndarray, den: np.ndarray):
+    """`gap_summary` by the compiled kernel (`kernels.gap_summary`): the same four arrays, bit for bit."""
+    m, cfg = t.map, t.config
+    xy_o, yaw_o, v_o, hl_o, hw_o, idx_o = obstacles(t)
+    n_k = len(m.cross_lane)
+    blocked = occupied_crossings(t) if (t.np_ and n_k) else np.zeros(n_k, dtype=bool)
+    n_y = len(m.yield_lane) if t.approaches is None else 0
+    conflict, committed = _merge_state(t, ctx, f["accept_gap"]) if n_y else (_NO_BOOL, _NO_BOOL)
+    table = t.approaches if t.approaches is not None and len(t.approaches) else _NO_APPROACHES
+    urban = bool(t.urban)
+    if len(table):
+        waited_all = np.append(t.stopped_time, 0.0)  # [s] the ego never waits
+        courteous_a = courteous_agents(t, ctx)
+        changing = np.flatnonzero(t.active & (t.lc_dist < cfg.lane_change_length))
+        changing_xy = t._current_pos[t.vehicle_slots[changing], :2]
+    else:
+        waited_all, courteous_a = np.zeros(len(ctx["s"])), np.zeros(len(ctx["s"]), dtype=bool)
+        changing, changing_xy = _NO_INT, np.zeros((0, 2))
+    yaw, c = f["yaw"], np.ascontiguousarray  # the kernel is compiled for C-contiguous arrays
+    return kernels.gap_summary(
+        f["rows"], c(f["path"]), c(f["offset"]), f["s"], f["v"], f["length"], f["width"], f["T"], den,
+        np.cos(yaw), np.sin(yaw), c(f["xy"]), kappa, f["courteous"],
+        ctx["lane"], ctx["s"], ctx["v"], ctx["length"], c(ctx["offset"]),
+        c(xy_o), np.cos(yaw_o), np.sin(yaw_o), v_o, hl_o, hw_o, idx_o,
+        m.cross_lane, c(m.cross_s), blocked,
+        m.yield_lane[:n_y], m.yield_stop[:n_y], m.yield_merge[:n_y], conflict, committed,
+        ending_lanes(t) if urban else _no_ending(m.n_lanes), m.length,
+        table.lane, table.s_in, table.s_out, table.other, table.o_in, table.o_out, table.yields, table.tie,
+        table.timed, table.merge, table.stop, table.courtesy, c(table.point), table.partner,
+        waited_all, courteous_a, changing, c(changing_xy), t.nv,
+        cfg.min_gap, cfg.stop_gap, cfg.max_decel, cfg.corridor_range, cfg.corridor_margin, cfg.crosswalk_margin,
+        cfg.merge_clearance, cfg.merge_speed, cfg.critical_gap_crossing, cfg.impatience, cfg.critical_gap_merge,
+        cfg.courtesy_range, urban,
+        COMMITTED, EDGE_MARGIN, MERGE_RANGE, CLEAR_ACCEL, CHANGING_RADIUS, HELD_SPEED, STANDING_ROOM, AT_LINE,
+        TURN_WAIT, CLAIM_DECEL, STOP_MARGIN,
+    )
+
+
+def _merge_state(t: Traffic, ctx: dict, accept_gap: float) -> tuple[np.ndarray, np.ndarray]:
+    """Roundabout merges (Y,): whether a priority agent comes too soon (`merges.merge_conflicts`), and whether
+    an entering agent is committed past its yield line (circulating vehicles keep out of its way)."""
+    m = t.map
+    on_entry = ctx["lane"][:, None] == m.yield_lane[None]  # (A, Y)
+    past = (ctx["s"] + ctx["length"] / 2)[:, None] - m.yield_stop[None]
+    committed = (on_entry & ((past > 1.0) | ((past > 0.5) & (ctx["v"] >= 1.0)[:, None]))).any(axis=0)
+    return merge_conflicts(t, ctx, accept_gap), committed
+
+
+@functools.lru_cache(maxsize=16)
+def _no_ending(n_lanes: int) -> np.ndarray:
+    return np.zeros(n_lanes, dtype=bool)
+
+
+_NO_BOOL = np.zeros(0, dtype=bool)
+_NO_INT = np.zeros(0, dtype=np.int64)
+_NO_FLOAT = np.zeros(0)
+_NO_APPROACHES = ApproachTable(
+    lane=_NO_INT, s_in=_NO_FLOAT, s_out=_NO_FLOAT, other=_NO_INT, o_in=_NO_FLOAT, o_out=_NO_FLOAT, yields=_NO_BOOL,
+    tie=_NO_BOOL, timed=_NO_BOOL, merge=_NO_BOOL, zone=_NO_INT, stop=_NO_FLOAT, courtesy=_NO_BOOL,
+    point=np.zeros((0, 2)))
+
+
+def idm(t: Traffic, f: dict, ctx: dict, vcurve: np.ndarray, interaction: np.ndarray, room: np.ndarray,
+        to_give_way: np.ndarray) -> np.ndarray:
+    """IDM accelerations [m/s^2] from the followers' gap summaries (see `gap_summary`), capped so that each
+    can still stop within its room whatever the obstacle does."""
+    m, cfg = t.map, t.config
+    path, offset, s, v = f["path"], f["offset"], f["s"], f["v"]
+    front = s + f["length"] / 2
+    lane0 = np.maximum(path[:, 0], 0)
+    n_y = len(m.yield_lane) if t.approaches is None else 0
     # Desired speed: own v0, the lane's speed limit, the curves ahead on this lane and the next.
     nxt = path[:, 1]
     to_end = m.length[lane0] - s
@@ -146,8 +252,6 @@ def accelerations(t: Traffic, f: dict, ctx: dict) -> np.ndarray:
     # still stop s0 short of it after this decision period: with the end speed w of the period,
     # distance (v + w) tau / 2 + w^2 / (2 b) <= gap - s0 + v_lead^2 / (2 b).
     b = cfg.max_decel
-    v_lead = np.maximum(lead, 0.0)
-    room = np.where(finite, gap - s0[None] + v_lead * v_lead / (2 * b), np.inf).min(axis=1)
     disc = 0.25 * tau * tau + 2.0 * (room - 0.5 * v * tau) / b
     w = np.where(disc > 0, b * (np.sqrt(np.maximum(disc, 0.0)) - 0.5 * tau), 0.0)
     # no positive end speed fits: stop within the room (the period's motion stops at v = 0)

@@ -44,10 +44,12 @@ import numpy as np
 
 from mjdrive.roads import RoadMap
 from mjdrive.roads.conflicts import ConflictZones
+from mjdrive.traffic import kernels
 from mjdrive.traffic.conflicts import ApproachTable
 from mjdrive.traffic.following import accelerations, follower_table
 from mjdrive.traffic.geometry import smoothstep, yaw_quat
 from mjdrive.traffic.intentions import SCENARIOS, LaneRoles, note_ring_progress, successor_preference
+from mjdrive.traffic.kernels import KERNELS
 from mjdrive.traffic.lane_changes import lane_changes
 from mjdrive.traffic.lanes import TrafficMap
 from mjdrive.traffic.params import (
@@ -86,6 +88,7 @@ class Traffic:
         right of way at every crossing and merge of the table, intentions, intention-driven lane changes
         with a signalling phase; without it, entries yield at merges by gap acceptance (the roundabout)."""
         self.config = cfg = config or TrafficConfig()
+        kernels.announce_compilation()
         self.map = road_map if isinstance(road_map, TrafficMap) else TrafficMap(road_map, cfg.lateral_accel)
         self.urban = conflicts is not None
         self.zones = conflicts
@@ -439,15 +442,25 @@ class Traffic:
     # --- accelerations -----------------------------------------------------------------------------------
     # --- poses -------------------------------------------------------------------------------------------
     def _make_plan(self, start: np.ndarray | None = None) -> _Plan:
+        """Poses of every slot at the substeps of the next decision period (`start`: distance (NV, PATH) [m]
+        to the start of each path lane, if known)."""
         t = self._t_plan[:, None]  # (S, 1)
         v, a = self.v[None], self.accel[None]
-        stopped = (a < 0) & (v + a * t < 0)
-        ds = np.where(stopped, v * v / np.maximum(-2 * a, 1e-9), v * t + 0.5 * a * t * t)  # (S, NV)
+        if KERNELS:  # the same numbers in one compiled pass (kernels.path_poses)
+            m = self.map
+            ds, x, y, h = kernels.path_poses(
+                self.s, self.v, self.accel, self._t_plan, self._path_starts() if start is None else start,
+                self.path, self._last_path_index(), m.base, m.length, m.first, m.last_segment, m.g, m._inv,
+                m._x0, m._dx, m._y0, m._dy, m._h0, m._dh)
+        else:
+            stopped = (a < 0) & (v + a * t < 0)
+            ds = np.where(stopped, v * v / np.maximum(-2 * a, 1e-9), v * t + 0.5 * a * t * t)  # (S, NV)
+            x, y, h = self._centre_poses(ds, start)
         out_pos = np.empty((len(t), self.n, 3))
         out_yaw = np.empty((len(t), self.n))
         out_speed = np.zeros((len(t), self.n))
         vs = self.vehicle_slots
-        out_pos[:, vs], out_yaw[:, vs] = self._vehicle_poses(ds, start)
+        out_pos[:, vs], out_yaw[:, vs] = self._offset_poses(ds, x, y, h)
         out_speed[:, vs] = np.maximum(v + a * t, 0.0) * self.active[None]
         if self.np_:
             ps = self.pedestrian_slots
@@ -457,17 +470,30 @@ class Traffic:
     def _vehicle_poses(self, ds: np.ndarray, before: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Poses (S, NV, 3), yaw (S, NV) of the vehicles after moving ds (S, NV) [m] along their paths
         (`before`: distance (NV, PATH) [m] to the start of each path lane, if known)."""
-        m, nv = self.map, self.nv
+        return self._offset_poses(ds, *self._centre_poses(ds, before))
+
+    def _path_starts(self) -> np.ndarray:
+        """(NV, PATH) [m] from each vehicle's lane start to the start of each lane on its path (inf past its end)."""
+        before = np.zeros((self.nv, PATH))
         path = self.path
+        np.cumsum(np.where(path[:, :-1] >= 0, self.map.length[path[:, :-1]], np.inf), axis=1, out=before[:, 1:])
+        return before
+
+    def _centre_poses(self, ds: np.ndarray, before: np.ndarray | None = None):
+        """Centre-line x, y [m] and heading [rad] (S, NV) of the vehicles' lanes after moving ds (S, NV) [m]."""
         if before is None:
-            before = np.zeros((nv, PATH))
-            np.cumsum(np.where(path[:, :-1] >= 0, m.length[path[:, :-1]], np.inf), axis=1, out=before[:, 1:])
+            before = self._path_starts()
+        path = self.path
         p = self.s[None] + ds
         k = (p[..., None] >= before[None, :, 1:]).sum(-1)  # (S, NV) index into the path
         k = np.minimum(k, self._last_path_index()[None])  # stay on a dead end's last lane
         flat = self._row_base + k
         lane = np.maximum(path.ravel()[flat], 0)
-        x, y, h = m.lookup(lane, p - before.ravel()[flat])
+        return self.map.lookup(lane, p - before.ravel()[flat])
+
+    def _offset_poses(self, ds: np.ndarray, x: np.ndarray, y: np.ndarray, h: np.ndarray):
+        """Poses (S, NV, 3), yaw (S, NV) at the vehicles' lateral offsets (and lane changes under way) from
+        the centre line x, y [m], heading h [rad] after moving ds (S, NV) [m]."""
         if np.any(self.lc_dist < self.config.lane_change_length):  # lane changes under way
             sm, dsm = smoothstep((self.lc_dist[None] + ds) / self.config.lane_change_length)
             d = self.d_pref[None] + self.lc_shift[None] * (1.0 - sm)

@@ -1,0 +1,42 @@
+"""`python -m mjdrive.traffic.compile_kernels`: compile the traffic kernels (`kernels`) into the on-disk cache
+once, by running a few decisions of roundabout and urban traffic (`make install` does it), so that no env
+pays the compilation later. Prints where the cache is and how long it took."""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+
+from mjdrive import roads
+from mjdrive.traffic import kernels
+from mjdrive.traffic.model import Traffic
+from mjdrive.traffic.params import counts_to_kinds
+from mjdrive.traffic.urban import urban_traffic
+
+
+def compile_kernels() -> float:
+    """Run every kernel on real traffic (the roundabout with pedestrians, the concatenated urban map); the
+    wall time [s] it took (the compilation, or loading it from the cache)."""
+    start = time.perf_counter()
+    rm = roads.roundabout()
+    for traffic in (Traffic(rm, counts_to_kinds({"car": 6, "motorcycle": 1, "pedestrian": 2})),
+                    urban_traffic(roads.concatenated())):
+        traffic.reset(np.random.default_rng(0))
+        for _ in range(3):
+            traffic.advance(traffic.config.decision_period)
+    return time.perf_counter() - start
+
+
+def main() -> int:
+    if not kernels.KERNELS:
+        print("traffic kernels: numba is not installed (pip install 'mjdrive[fast]'), the numpy code runs")
+        return 0
+    print(f"traffic kernels: compiling into {kernels.cache_dir()} ...", flush=True)
+    print(f"traffic kernels: ready in {compile_kernels():.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,388 @@
+"""Compiled kernels (numba) for the traffic decision's gap table: the same numbers as the numpy code in
+`following` and `conflicts`, bit for bit, without building (followers x obstacles) tables.
+
+A decision of the traffic is some 500 numpy calls on arrays of a few dozen elements, so it costs the calls'
+overhead, not the arithmetic. The kernel here walks every (follower, obstacle) pair once in compiled code
+and keeps only what the IDM needs of each follower's gap table: the smallest gap, the strongest
+interaction term and the least stopping room. It repeats the numpy expressions operation for operation
+(same order, same rounding; sine, cosine and powers stay in numpy, whose SIMD versions may round
+differently from libm), and `tests/test_traffic_kernels.py` checks that both give identical arrays at every
+decision of simulated traffic on every map.
+
+numba is an optional dependency (the `fast` extra, installed by `make`): without it `KERNELS` is False
+and the traffic runs the numpy code, which is the specification of this module. Compiled code is cached
+on disk (NUMBA_CACHE_DIR, by default under ~/.cache/mjdrive), so only the first process on a machine pays
+the compilation (a few seconds).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+if "NUMBA_CACHE_DIR" not in os.environ:  # a writable place for compiled code whatever the install
+    os.environ["NUMBA_CACHE_DIR"] = str(Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
+                                        / "mjdrive" / "numba")
+try:
+    from numba import njit
+except ImportError:  # the numpy code runs instead
+    KERNELS = False
+else:
+    KERNELS = os.environ.get("MJDRIVE_NO_KERNELS", "") in ("", "0")
+
+INF = np.inf
+
+
+def cache_dir() -> Path:
+    """Where numba keeps the compiled kernels."""
+    return Path(os.environ["NUMBA_CACHE_DIR"])
+
+
+def announce_compilation() -> None:
+    """Say on stderr, once per process, that the kernels are being compiled when the cache has none of them
+    yet (the first env on a machine then waits a few seconds in silence otherwise)."""
+    global _announced
+    if _announced or not KERNELS:
+        return
+    _announced = True
+    if not any(cache_dir().rglob("kernels.gap_summary*.nbi")):
+        print(f"mjdrive: compiling the traffic kernels once for this machine (about 10 s; cache {cache_dir()})",
+              file=sys.stderr, flush=True)
+
+
+_announced = False
+
+
+def _jit(fn):
+    return njit(cache=True, nogil=True)(fn) if KERNELS else fn
+
+
+def _inline(fn):
+    """A helper of the kernel, inlined into it (no call, no reference counting of its array arguments)."""
+    return njit(inline="always", cache=True, nogil=True)(fn) if KERNELS else fn
+
+
+@_inline
+def _maximum(a: float, b: float) -> float:
+    """np.maximum of two floats (NaN wins)."""
+    if a != a or a >= b:
+        return a
+    return b
+
+
+@_inline
+def _minimum(a: float, b: float) -> float:
+    """np.minimum of two floats (NaN wins)."""
+    if a != a or a <= b:
+        return a
+    return b
+
+
+@_inline
+def _can_stop(v: float, to_line: float, claim_decel: float, stop_margin: float, held_speed: float,
+              committed: float) -> bool:
+    """conflicts._can_stop for one pair."""
+    return (v * v < 2.0 * claim_decel * _maximum(to_line - stop_margin, -1e9)) or (
+        v < held_speed and to_line > -committed)
+
+
+@_jit
+def gap_summary(
+    # followers (F,)
+    rows, path, offset, s, v, length, width, T, den, c, sn, xy, kappa, courteous_f,
+    # agents of the decision (A,)
+    lane_a, s_a, v_a, len_a, offset_a,
+    # obstacles of the corridor (O,)
+    xy_o, co, so, v_o, hl_o, hw_o, idx_o,
+    # crosswalks (K,)
+    cross_lane, cross_s, blocked_k,
+    # roundabout merges (Y,)
+    yield_lane, yield_stop, yield_merge, conflict_y, committed_y,
+    # ending lanes (L,) (urban), all False elsewhere
+    ending, lane_length,
+    # conflict-zone approaches (R,) (urban), empty elsewhere
+    ap_lane, ap_s_in, ap_s_out, ap_other, ap_o_in, ap_o_out, ap_yields, ap_tie, ap_timed, ap_merge, ap_stop,
+    ap_courtesy, ap_point, ap_partner,
+    waited_all, courteous_a, changing_rows, changing_xy, ego_row,
+    # scalars: config
+    min_gap, stop_gap, max_decel, corridor_range, corridor_margin, crosswalk_margin, merge_clearance,
+    merge_speed, critical_gap_crossing, impatience, critical_gap_merge, courtesy_range, urban,
+    # scalars: conflicts' constants
+    committed_m, edge_margin, merge_range, clear_accel, changing_radius, held_speed, standing_room, at_line_m,
+    turn_wait, claim_decel, stop_margin,
+):
+    """For every follower: the smallest gap [m] of its gap table (inf if none), the largest IDM
+    interaction term (s*/gap)^2, the least stopping room [m] (gap - s0 + v_lead^2 / 2 max_decel; inf if
+    none) and the distance [m] to its nearest give-way line still ahead (inf if none): what
+    `following.accelerations` reduces its (F, columns) table to. Arguments as in `accelerations_kernel`."""
+    n_f, n_a, n_o, n_k, n_y, n_r = len(s), len(s_a), len(xy_o), len(cross_lane), len(yield_lane), len(ap_lane)
+    lead_gap = np.full(n_f, INF)
+    interaction = np.zeros(n_f)
+    room = np.full(n_f, INF)
+    to_give_way = np.full(n_f, INF)
+    two_b = 2 * max_decel
+
+    # --- per agent and approach (urban): agents on the zone's other lane (the rest never conflict there) ----
+    inside = np.zeros((n_a, n_r), dtype=np.bool_)
+    ttz = np.full((n_a, n_r), INF)
+    held = np.zeros((n_a, n_r), dtype=np.bool_)
+    can_stop = np.zeros((n_a, n_r), dtype=np.bool_)
+    claiming = np.zeros((n_a, n_r), dtype=np.bool_)
+    in_zone = np.zeros((n_a, n_r), dtype=np.bool_)
+    t_line_o = np.full((n_a, n_r), INF)
+    waiting_o = np.zeros((n_a, n_r), dtype=np.bool_)
+    d_them = np.full((n_a, n_r), INF)
+    near = np.zeros((n_a, n_r), dtype=np.bool_)
+    on_lane = np.empty((n_r, n_a), dtype=np.int64)  # on_lane[r, :n_on[r]]: the agents on approach r's other lane
+    n_on = np.zeros(n_r, dtype=np.int64)
+    for a in range(n_a):
+        half = len_a[a] / 2
+        pace = _maximum(v_a[a], merge_speed)
+        for r in range(n_r):
+            off_other = offset_a[a, ap_other[r]]
+            if not np.isfinite(off_other):
+                continue
+            on_lane[r, n_on[r]] = a
+            n_on[r] += 1
+            off_own = offset_a[a, ap_lane[r]]
+            base = -off_other
+            f_o = base + (s_a[a] + half)
+            rear_o = base + (s_a[a] - half)
+            on_other = np.isfinite(f_o) and not np.isfinite(off_own)
+            partner = ap_partner[r]
+            other_stop = ap_stop[partner]
+            entered = _minimum(ap_o_in[r], other_stop + committed_m) if (ap_yields[partner] or ap_tie[partner]) \
+                else ap_o_in[r]
+            ins = on_other and f_o > entered and rear_o < ap_o_out[r]
+            inside[a, r] = ins
+            before = on_other and not ins and f_o <= ap_o_in[r]
+            if before:
+                ttz[a, r] = (ap_o_in[r] - f_o) / pace
+            elif ins:
+                ttz[a, r] = 0.0
+            before_line = v_a[a] < held_speed and f_o <= other_stop + committed_m
+            at_line = other_stop - f_o < at_line_m
+            held[a, r] = before_line and not (at_line and waited_all[a] >= turn_wait)
+            to_own = other_stop - f_o
+            if not np.isfinite(to_own):
+                to_own = -INF
+            can_stop[a, r] = a != ego_row and _can_stop(v_a[a], to_own, claim_decel, stop_margin, held_speed,
+                                                        committed_m)
+            claiming[a, r] = before_line and at_line and waited_all[a] >= impatience and ap_yields[partner]
+            in_zone[a, r] = ins and f_o > ap_o_in[r]
+            t_line_o[a, r] = _maximum(other_stop - f_o, 0.0) / pace
+            waiting_o[a, r] = np.isfinite(f_o) and not ins and f_o <= ap_o_in[r] and not np.isfinite(off_own)
+            dt_ = ap_o_out[r] - f_o
+            d_them[a, r] = dt_
+            near[a, r] = np.isfinite(dt_) and dt_ > -len_a[a] and dt_ < merge_range
+
+    needed = np.empty(n_a)  # [m] the headway of an agent behind a merging follower
+    for a in range(n_a):
+        needed[a] = min_gap + v_a[a] * critical_gap_merge if v_a[a] >= held_speed else standing_room
+
+    for f in range(n_f):
+        row = rows[f]
+        front = s[f] + length[f] / 2
+        vf = v[f]
+        vT = vf * T[f]
+        state = (INF, 0.0, INF)  # smallest gap, largest interaction, least room
+
+        # 1. Leaders along the planned path (vehicles and the ego).
+        best_path, best_a = INF, 0
+        for a in range(n_a):
+            pos = offset[f, lane_a[a]] + s_a[a]
+            ahead = (pos > s[f] or (pos == s[f] and a > row)) and a != row
+            g = pos - front - len_a[a] / 2 if ahead else INF
+            if g < best_path:
+                best_path, best_a = g, a
+            state = _fold(state, g, v_a[a], min_gap, vf, vT, den[f], two_b)
+
+        # 2. The corridor ahead (curvature-corrected).
+        for o in range(n_o):
+            rx = xy_o[o, 0] - xy[f, 0]
+            ry = xy_o[o, 1] - xy[f, 1]
+            dx = c[f] * rx + sn[f] * ry
+            dy = -sn[f] * rx + c[f] * ry - 0.5 * kappa[f] * dx * dx
+            cos_d = co[o] * c[f] + so[o] * sn[f]
+            cd, sd = abs(cos_d), abs(so[o] * c[f] - co[o] * sn[f])
+            ins = dx > 0 and dx < corridor_range and idx_o[o] != row
+            ins = ins and abs(dy) < (width[f] / 2 + corridor_margin) + sd * hl_o[o] + cd * hw_o[o]
+            g = dx - length[f] / 2 - cd * hl_o[o] - sd * hw_o[o] if ins else INF
+            state = _fold(state, g, v_o[o] * cos_d, min_gap, vf, vT, den[f], two_b)
+
+        # 3. Crosswalk stop lines.
+        if n_k:
+            path_gap = _minimum(best_path, 1e9)
+            slow_leader = path_gap < 1e9 and v_a[best_a] < 3.0
+            for k in range(n_k):
+                stop = offset[f, cross_lane[k]] + (cross_s[k, 0] - crosswalk_margin) - front
+                beyond = stop + (cross_s[k, 1] - cross_s[k, 0] + 2 * crosswalk_margin)
+                no_room = slow_leader and path_gap - beyond < length[f] + min_gap
+                blocked = no_room or blocked_k[k]
+                g = stop if blocked and stop > -0.5 else INF
+                state = _fold(state, g, 0.0, stop_gap, vf, vT, den[f], two_b)
+
+        # 4. Roundabout merges: stop lines while a priority agent comes, room for committed entries.
+        for y in range(n_y):
+            if conflict_y[y]:
+                stop = offset[f, yield_lane[y]] + yield_stop[y] - front
+                holding = stop > -0.5 or (stop > -1.0 and vf < 1.0)
+                state = _fold(state, stop if holding else INF, 0.0, stop_gap, vf, vT, den[f], two_b)
+            if committed_y[y]:
+                to_merge = offset[f, yield_merge[y]]
+                through = offset[f, yield_lane[y]] < INF
+                stop = to_merge - merge_clearance - front
+                keep_out = not through and to_merge > 0 and stop > -0.5
+                state = _fold(state, stop if keep_out else INF, 0.0, stop_gap, vf, vT, den[f], two_b)
+
+        # 5. Urban: conflict zones on the follower's path.
+        half_me = len_a[row] / 2
+        for r in range(n_r):
+            front_me = -offset_a[row, ap_lane[r]] + (s_a[row] + half_me)
+            if not np.isfinite(front_me):
+                continue
+            timed, yields, tie = ap_timed[r], ap_yields[r], ap_tie[r]
+            gives_way = yields or tie
+            v_me, length_me = _maximum(v_a[row], 0.0), len_a[row]
+            to_clear = _maximum(ap_s_out[r] + length_me - front_me, 0.0)
+            t_clear = (np.sqrt(v_me * v_me + 2 * clear_accel * to_clear) - v_me) / clear_accel
+            waited = waited_all[row]
+            critical = critical_gap_crossing * _maximum(0.0, 1.0 - waited / impatience)
+            me_stop = ap_stop[r] - front_me
+            forcing = (waited >= impatience and v_me < held_speed and me_stop < at_line_m
+                       and me_stop >= -committed_m and yields)
+            # crossings (and merges inside junctions)
+            soon = claimed_any = promised = occupied = first = False
+            pace_me = _maximum(v_a[row], merge_speed)
+            t_line_me = _maximum(ap_stop[r] - front_me, 0.0) / pace_me
+            for k in range(n_on[r]):  # the agents on the other lane (the others neither conflict nor lead here)
+                a = on_lane[r, k]
+                if a == row:
+                    continue
+                stoppable = forcing and can_stop[a, r]
+                if not held[a, r] and not stoppable and ttz[a, r] < t_clear + critical:
+                    soon = True
+                if claiming[a, r]:
+                    claimed_any = True
+                if inside[a, r]:
+                    promised = True
+                if in_zone[a, r]:
+                    occupied = True
+                if waiting_o[a, r]:
+                    longer = waited_all[a] > waited or (waited_all[a] == waited and a < row)
+                    if t_line_o[a, r] < t_line_me or (t_line_o[a, r] == t_line_me and longer):
+                        first = True
+            claimed = claimed_any and not yields and not tie and _can_stop(
+                v_me, me_stop, claim_decel, stop_margin, held_speed, committed_m)
+            for j in range(len(changing_rows)):
+                if changing_rows[j] != row and np.hypot(changing_xy[j, 0] - ap_point[r, 0],
+                                                        changing_xy[j, 1] - ap_point[r, 1]) < changing_radius:
+                    promised = True
+            wait_timed = timed and ((yields and soon) or (tie and first))
+
+            # merges: committed agents ahead are virtual leaders; outside junctions, a zipper
+            d_me = ap_s_out[r] - front_me
+            courteous = courteous_f[f] and ap_courtesy[r] and d_me < courtesy_range
+            zipper = not timed and (gives_way or courteous)
+            leader_gap, leader = INF, 0
+            room_nearest, nearest = INF, 0
+            for k in range(n_on[r]):
+                a = on_lane[r, k]
+                if a == row or not near[a, r]:
+                    continue
+                dt_ = d_them[a, r]
+                if ap_merge[r] and dt_ < d_me and (inside[a, r] or zipper):
+                    spacing = d_me - dt_ - len_a[a]
+                    if spacing < leader_gap:
+                        leader_gap, leader = spacing, a
+                if not timed and dt_ >= d_me:
+                    room_a = dt_ - d_me - length_me
+                    if room_a < room_nearest:
+                        room_nearest, nearest = room_a, a
+            leader_speed = v_a[leader]
+            letting_in = courteous_a[nearest] and ap_courtesy[r]
+            cut_off = np.isfinite(room_nearest) and not letting_in and room_nearest < needed[nearest]
+            wait_merge = not timed and yields and cut_off
+
+            # stop lines
+            holding = me_stop > -committed_m
+            edge = ap_s_in[r] - edge_margin - front_me
+            line_gap = INF
+            if (wait_timed or wait_merge or (timed and (promised or claimed))) and holding:
+                line_gap = me_stop
+            if timed and occupied and edge > -committed_m:
+                line_gap = _minimum(line_gap, edge)
+            to_line = me_stop if gives_way and holding else INF
+            to_give_way[f] = _minimum(to_give_way[f], to_line)
+            state = _fold(state, line_gap, 0.0, stop_gap, vf, vT, den[f], two_b)
+            state = _fold(state, leader_gap, leader_speed, min_gap, vf, vT, den[f], two_b)
+
+        # ... and the end of an ending lane (an on-ramp) is a wall until the vehicle has moved over.
+        if urban:
+            k_end = -1
+            for j in range(path.shape[1]):
+                if path[f, j] >= 0:
+                    k_end += 1
+            last = path[f, max(k_end, 0)]
+            lane_last = max(last, 0)
+            ends = ending[lane_last] and last >= 0
+            to_end = offset[f, lane_last] + lane_length[lane_last] - front
+            state = _fold(state, to_end if ends else INF, 0.0, stop_gap, vf, vT, den[f], two_b)
+
+        lead_gap[f], interaction[f], room[f] = state
+    return lead_gap, interaction, room, to_give_way
+
+
+@_inline
+def _fold(state, gap: float, lead: float, s0: float, v: float, vT: float, den: float, two_b: float):
+    """Add one column (gap [m], obstacle speed [m/s], s0 [m]) to a follower's (smallest gap, largest
+    interaction, least room)."""
+    smallest, strongest, least = state
+    smallest = _minimum(smallest, gap)
+    if gap < INF:
+        s_star = s0 + _maximum(0.0, vT + v * (v - lead) / den)
+        q = s_star / _maximum(gap, 0.05)
+        strongest = _maximum(strongest, q * q)
+        v_lead = _maximum(lead, 0.0)
+        least = _minimum(least, gap - s0 + v_lead * v_lead / two_b)
+    return smallest, strongest, least
+
+
+@_jit
+def path_poses(s, v, accel, t_plan, before, path, last_index,
+               base, lane_length, first, last_segment, g, inv, x0, dx, y0, dy, h0, dh):
+    """Where each vehicle is at each substep of a decision period: distance moved ds (S, NV) [m] and the
+    centre-line x, y [m], heading [rad] there (S, NV), as `Traffic._make_plan` and `TrafficMap.lookup`
+    compute them (closed-form motion at constant acceleration, stopping at zero speed)."""
+    n_s, n_v, n_p = len(t_plan), len(s), before.shape[1]
+    ds = np.empty((n_s, n_v))
+    x = np.empty((n_s, n_v))
+    y = np.empty((n_s, n_v))
+    h = np.empty((n_s, n_v))
+    for i in range(n_s):
+        t = t_plan[i]
+        for n in range(n_v):
+            vn, an = v[n], accel[n]
+            if an < 0 and vn + an * t < 0:
+                d = vn * vn / _maximum(-2 * an, 1e-9)
+            else:
+                d = vn * t + 0.5 * an * t * t
+            ds[i, n] = d
+            p = s[n] + d
+            k = 0
+            for j in range(1, n_p):
+                if p >= before[n, j]:
+                    k += 1
+            k = min(k, last_index[n])
+            lane = max(path[n, k], 0)
+            gq = base[lane] + _minimum(_maximum(p - before[n, k], 0.0), lane_length[lane])
+            seg = np.searchsorted(g, gq, side="right") - 1
+            seg = min(max(seg, first[lane]), last_segment[lane])
+            u = (gq - g[seg]) * inv[seg]
+            x[i, n] = x0[seg] + u * dx[seg]
+            y[i, n] = y0[seg] + u * dy[seg]
+            h[i, n] = h0[seg] + u * dh[seg]
+    return ds, x, y, h

@@ -1,0 +1,95 @@
+"""The compiled traffic kernels (mjdrive.traffic.kernels) give the numpy code's numbers bit for bit: at every
+decision of real traffic (the roundabout with pedestrians, every urban map, the autopilot's own advice), and
+over whole trajectories. (Without numba the kernels run as plain Python, slowly, and must agree all the same.)"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import pytest
+
+import mjdrive.traffic.following as following
+import mjdrive.traffic.model as model
+from mjdrive import suite
+from mjdrive.envs.gym_env import make_env
+from mjdrive.policies import make_policy
+
+
+def _checked_summaries(monkeypatch) -> list[int]:
+    """Make every gap summary run both ways and compare them; returns a list that counts the comparisons."""
+    calls = []
+    kernel = following.gap_summary_kernel
+
+    def both(t, f, ctx, kappa, den):
+        expected = following.gap_summary(t, f, ctx, kappa, den)
+        got = kernel(t, f, ctx, kappa, den)
+        for name, e, g in zip(("lead_gap", "interaction", "room", "to_give_way"), expected, got, strict=True):
+            assert e.dtype == g.dtype and np.array_equal(e, g), (name, e, g)
+        calls.append(len(f["rows"]))
+        return got
+
+    monkeypatch.setattr(following, "gap_summary_kernel", both)
+    monkeypatch.setattr(following, "KERNELS", True)  # the kernel's path even without numba (plain Python then)
+    return calls
+
+
+def _checked_plans(monkeypatch) -> list[int]:
+    """Make every plan of poses run both ways and compare them."""
+    calls = []
+    make_plan = model.Traffic._make_plan
+
+    def both(self, start=None):
+        monkeypatch.setattr(model, "KERNELS", False)
+        expected = make_plan(self, start)
+        monkeypatch.setattr(model, "KERNELS", True)
+        got = make_plan(self, start)
+        for name in ("pos", "quat", "yaw", "speed"):
+            assert np.array_equal(getattr(expected, name), getattr(got, name)), name
+        calls.append(1)
+        return got
+
+    monkeypatch.setattr(model.Traffic, "_make_plan", both)
+    return calls
+
+
+@pytest.mark.parametrize("domain, task, policy", [
+    ("roundabout", "d210", "brake"),  # pedestrians, crosswalks, roundabout merges
+    ("urban", "concatenated", "autopilot"),  # every conflict zone; the autopilot's advice (one follower)
+    ("urban", "merge", "always_go"),
+])
+def test_kernels_give_the_numpy_numbers_at_every_decision(monkeypatch, domain, task, policy):
+    summaries, plans = _checked_summaries(monkeypatch), _checked_plans(monkeypatch)
+    env = make_env(domain, task, random=3)
+    act = (lambda obs: np.array([0.0, 0.0, 1.0])) if policy == "brake" else make_policy(policy, env, 3)
+    observation, _ = env.reset(seed=3)
+    for _ in range(300 if domain == "urban" else 150):
+        observation, _, terminated, truncated, _ = env.step(act(observation))
+        if terminated or truncated:
+            observation, _ = env.reset()
+    assert len(plans) >= 40
+    assert sum(n > 1 for n in summaries) >= 40  # the traffic's own decisions
+    if policy == "autopilot":
+        assert sum(n == 1 for n in summaries) >= 100  # the autopilot's advice, every control step
+
+
+def _trajectory_hash(domain: str, task: str, steps: int) -> str:
+    env = suite.load(domain, task, {"random": 1})
+    env.reset()
+    digest = hashlib.sha256()
+    for i in range(steps):
+        timestep = env.step(np.array([0.4, 0.02, 0.0]) if i % 40 < 25 else np.array([0.0, 0.0, 1.0]))
+        digest.update(env.task.traffic.poses().tobytes())
+        digest.update(env.physics.data.qpos.tobytes())
+        if timestep.last():
+            env.reset()
+    return digest.hexdigest()
+
+
+@pytest.mark.parametrize("domain, task", [("roundabout", "d120"), ("urban", "crossroad")])
+def test_same_trajectories_with_and_without_kernels(monkeypatch, domain, task):
+    with_kernels = _trajectory_hash(domain, task, 200)
+    monkeypatch.setattr(following, "KERNELS", False)
+    monkeypatch.setattr(model, "KERNELS", False)
+    without = _trajectory_hash(domain, task, 200)
+    assert with_kernels == without
