@@ -85,9 +85,10 @@ def pin_threads() -> None:
 
 
 # imported once by the forkserver, so that each worker forks with them loaded (torch and its compiler stack, which
-# torch.optim pulls in, take seconds to import); nothing that opens a GL display (dm_control's EGL backend does at
-# import): every worker initialises its own
-FORKSERVER_PRELOAD = ("numpy", "gymnasium", "torch", "torch._dynamo")
+# torch.optim pulls in, take seconds to import; `mjdrive.envs.preload`: what a worker would otherwise load at its
+# first episode, stalling every step of the batch there); nothing that opens a GL display (dm_control's EGL
+# backend does at import): every worker initialises its own
+FORKSERVER_PRELOAD = ("numpy", "gymnasium", "torch", "torch._dynamo", "mjdrive.envs.preload")
 
 
 def exit_with_parent(pid: int, period: float = 1.0) -> None:

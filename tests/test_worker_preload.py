@@ -1,0 +1,31 @@
+"""Worker processes fork from a forkserver that has loaded what a worker would otherwise import at its first
+episode (scipy.signal, numba's registries: a stall of the whole batch there), and nothing that must happen in
+the worker itself (a GL display, threads)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from mjdrive.envs.fanout import fan_out
+from mjdrive.envs.vector import FORKSERVER_PRELOAD
+
+PRELOADED = ("scipy.signal", "numba")
+
+
+def _loaded(names: tuple[str, ...], index: int) -> dict[str, bool]:
+    """In a worker, before its job imports anything: which of `names` it has (this module imports none)."""
+    return {name: name in sys.modules for name in names}
+
+
+def test_workers_start_with_scipy_signal_and_numba_loaded():
+    assert "mjdrive.envs.preload" in FORKSERVER_PRELOAD
+    assert fan_out(_loaded, PRELOADED, [0], workers=1) == {0: dict.fromkeys(PRELOADED, True)}
+
+
+def test_the_preload_opens_no_gl_display_and_starts_no_thread():
+    code = ("import sys, threading; import mjdrive.envs.preload as p; "
+            "print(threading.active_count(), sorted(p.preload()), "
+            "[m for m in sys.modules if m.split('.')[0] in ('dm_control', 'mujoco', 'OpenGL')])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split("\n")[0] == "1 ['numba', 'scipy.signal'] []"
