@@ -34,6 +34,26 @@ def _checked_summaries(monkeypatch) -> list[int]:
     return calls
 
 
+def _checked_accelerations(monkeypatch) -> list[int]:
+    """Make every IDM acceleration (the traffic's and the autopilot's advice) run both ways and compare."""
+    calls = []
+    accelerations = following.accelerations
+
+    def both(t, f, ctx):
+        lead_gap = t.lead_gap.copy()
+        monkeypatch.setattr(following, "KERNELS", False)
+        expected, expected_lead_gap = accelerations(t, f, ctx), t.lead_gap.copy()
+        t.lead_gap = lead_gap
+        monkeypatch.setattr(following, "KERNELS", True)
+        got = accelerations(t, f, ctx)
+        assert np.array_equal(expected, got) and np.array_equal(expected_lead_gap, t.lead_gap)
+        calls.append(len(f["rows"]))
+        return got
+
+    monkeypatch.setattr(model, "accelerations", both)
+    return calls
+
+
 def _checked_plans(monkeypatch) -> list[int]:
     """Make every plan of poses run both ways and compare them."""
     calls = []
@@ -60,6 +80,7 @@ def _checked_plans(monkeypatch) -> list[int]:
 ])
 def test_kernels_give_the_numpy_numbers_at_every_decision(monkeypatch, domain, task, policy):
     summaries, plans = _checked_summaries(monkeypatch), _checked_plans(monkeypatch)
+    accelerations = _checked_accelerations(monkeypatch)
     env = make_env(domain, task, random=3)
     act = (lambda obs: np.array([0.0, 0.0, 1.0])) if policy == "brake" else make_policy(policy, env, 3)
     observation, _ = env.reset(seed=3)
@@ -67,7 +88,7 @@ def test_kernels_give_the_numpy_numbers_at_every_decision(monkeypatch, domain, t
         observation, _, terminated, truncated, _ = env.step(act(observation))
         if terminated or truncated:
             observation, _ = env.reset()
-    assert len(plans) >= 40
+    assert len(plans) >= 40 and len(accelerations) >= 40
     assert sum(n > 1 for n in summaries) >= 40  # the traffic's own decisions
     if policy == "autopilot":
         assert sum(n == 1 for n in summaries) >= 100  # the autopilot's advice, every control step

@@ -386,3 +386,50 @@ def path_poses(s, v, accel, t_plan, before, path, last_index,
             y[i, n] = y0[seg] + u * dy[seg]
             h[i, n] = h0[seg] + u * dh[seg]
     return ds, x, y, h
+
+
+@_jit
+def desired_speed(path, offset, s, length, v0_own, vcurve, to_give_way, lane_length, entry_speed, speed_limit,
+                  anticipation, yield_lane, yield_stop, yield_speed):
+    """`following.idm`'s desired speed [m/s] of each follower: its own, the lane's limit, the curves ahead on
+    this lane and the next, and slow enough to stop at yield lines (roundabout) and give-way lines ahead."""
+    n_f, n_y = len(s), len(yield_lane)
+    out = np.empty(n_f)
+    ys2 = yield_speed**2
+    for f in range(n_f):
+        lane0 = max(path[f, 0], 0)
+        nxt = path[f, 1]
+        vnext = INF
+        if nxt >= 0:
+            e = entry_speed[max(nxt, 0)]
+            vnext = np.sqrt(e * e + 2 * anticipation * _maximum(lane_length[lane0] - s[f], 0.0))
+        v0 = _minimum(_minimum(v0_own[f], speed_limit[lane0]), _minimum(vcurve[f], vnext))
+        if n_y:
+            front = s[f] + length[f] / 2
+            to_line = INF
+            for y in range(n_y):
+                to_line = _minimum(to_line, offset[f, yield_lane[y]] + yield_stop[y] - front)
+            if to_line > -0.5 and to_line < INF:
+                v0 = _minimum(v0, np.sqrt(ys2 + 2 * 1.5 * _maximum(to_line, 0.0)))
+        if to_give_way[f] < INF:
+            v0 = _minimum(v0, np.sqrt(ys2 + 2 * 1.5 * _maximum(to_give_way[f], 0.0)))
+        out[f] = v0
+    return out
+
+
+@_jit
+def idm_accel(a, v, v0, ratio4, interaction, room, tau, max_decel):
+    """`following.idm`'s accelerations [m/s^2] from the desired speed v0, ratio4 = (v / max(v0, 0.1))^4 (a power,
+    left to numpy), the interaction terms and the stopping rooms."""
+    out = np.empty(len(v))
+    b = max_decel
+    for f in range(len(v)):
+        vf = v[f]
+        acc = a[f] * (1.0 - ratio4[f] - interaction[f])
+        if vf <= v0[f]:
+            acc = _minimum(acc, (v0[f] - vf) / tau)
+        disc = 0.25 * tau * tau + 2.0 * (room[f] - 0.5 * vf * tau) / b
+        w = b * (np.sqrt(_maximum(disc, 0.0)) - 0.5 * tau) if disc > 0 else 0.0
+        acc = _minimum(acc, (w - vf) / tau if w > 0 else -vf * vf / (2 * _maximum(room[f], 1e-3)))
+        out[f] = _maximum(_minimum(acc, a[f]), -max_decel)
+    return out

@@ -70,11 +70,12 @@ def _intended(t: Traffic, right: np.ndarray, left: np.ndarray, near_merge: np.nd
     # Never into a lane of lower rank (an acceleration lane that must give way at its end).
     target = np.where(ending | (t.roles.priority[np.maximum(target, 0)] >= t.roles.priority[lane0]), target, -1)
     able = t.active & (target >= 0) & (t.lc_dist >= cfg.lane_change_length) & (t.s > 1.0) & ~near_merge
-    if t.approaches is not None and len(t.approaches):  # not across a conflict zone: the move takes a while
-        xy = t._current_pos[t.vehicle_slots, :2]
+    if t.approaches is not None and len(t.approaches) and able.any():  # not across a conflict zone: the move
+        rows = np.flatnonzero(able)  # takes a while
+        xy = t._current_pos[t.vehicle_slots[rows], :2]
         point = t.approaches.point
         nearest = np.hypot(xy[:, None, 0] - point[None, :, 0], xy[:, None, 1] - point[None, :, 1]).min(axis=1)
-        able &= nearest > ZONE_CLEARANCE + cfg.lane_change_length
+        able[rows] = nearest > ZONE_CLEARANCE + cfg.lane_change_length
     t.lc_signal = np.where(able & (t.lc_signal < 0), t.time, np.where(able | t.lc_changing, t.lc_signal, -1.0))
     ready = able & (t.lc_signal >= 0) & (t.time - t.lc_signal >= cfg.signal_time - 1e-9)
     if not ready.any():
@@ -86,9 +87,7 @@ def _intended(t: Traffic, right: np.ndarray, left: np.ndarray, near_merge: np.nd
 def ending_lanes(t: Traffic) -> np.ndarray:
     """(L,) lanes without successors beside a same-direction neighbour that goes on (an on-ramp; not the
     lanes of a road leaving the map, which all end)."""
-    m = t.map
-    goes_on = lambda lane: (lane >= 0) & (m.n_successors[np.maximum(lane, 0)] > 0)  # noqa: E731
-    return (m.n_successors == 0) & (goes_on(m.left) | goes_on(m.right))
+    return t.map.ending
 
 
 def _finish_intended(t: Traffic) -> None:

@@ -58,6 +58,10 @@ class TrafficMap:
         self._merges()
         self._crossings()
         self._spawn_points()
+        goes_on = lambda lane: (lane >= 0) & (self.n_successors[np.maximum(lane, 0)] > 0)  # noqa: E731
+        # (L,) lanes without successors beside a same-direction neighbour that goes on (an on-ramp; not the
+        # lanes of a road leaving the map, which all end)
+        self.ending = (self.n_successors == 0) & (goes_on(self.left) | goes_on(self.right))
 
     # --- flat polylines --------------------------------------------------------------------------------
     def _flatten(self) -> None:

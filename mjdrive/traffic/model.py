@@ -97,6 +97,7 @@ class Traffic:
                            else None)
         self.ego_exit = -1  # the ego's ring exit lane (roundabout intentions), see `set_ego_route`
         self.spawn_points = spawn_points
+        self._spawn_places: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # spawning._places
         self.kinds = tuple(kinds)
         unknown = set(self.kinds) - set(ROAD_USER_TYPES)
         if unknown:

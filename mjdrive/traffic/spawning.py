@@ -29,27 +29,27 @@ def spawn(t: Traffic) -> bool:
     decision)."""
     m, cfg = t.map, t.config
     points = t.spawn_points
-    lanes = m.sources if points is None else np.concatenate([m.sources, points.lane])
+    lanes, starts, place_xy = _places(t)
     if t.active.all() or not len(lanes) or not cfg.respawn:
         return False
-    starts = np.zeros(len(m.sources)) if points is None else np.concatenate([np.zeros(len(m.sources)), points.s])
     idle = np.flatnonzero(~t.active)
+    pick = (t.rng.random(len(idle)) * len(lanes)).astype(np.int64)  # a place for each idle vehicle
+    due = np.ones(len(idle), dtype=bool)
+    if t.urban and cfg.spawn_rate > 0:  # arrivals at random times (a Poisson demand), not back to back
+        due = t.intent_rng.random(len(idle)) < cfg.spawn_rate * cfg.decision_period
+        if not due.any():
+            return False
     lane = np.where(t.active, t.path[:, 0], -1)
     near_start = (lane[:, None] == lanes[None]) & (np.abs(t.s[:, None] - starts[None]) - t.length[:, None] / 2
                                                    < cfg.spawn_clear)
     clear = ~near_start.any(axis=0)
-    place_xy = m.source_xy if points is None else np.concatenate([m.source_xy, np.column_stack(
-        m.lookup(points.lane, points.s)[:2])])
     if t.urban:  # short source lanes: anything near the place counts, whatever lane it is on
         xy = t._current_pos[t.vehicle_slots[t.active], :2]
         dist = np.hypot(xy[:, None, 0] - place_xy[None, :, 0], xy[:, None, 1] - place_xy[None, :, 1])
         clear &= ~(dist < cfg.spawn_clear).any(axis=0)
     if t.ego is not None:
         clear &= np.hypot(place_xy[:, 0] - t.ego.x, place_xy[:, 1] - t.ego.y) >= cfg.spawn_clear
-    pick = (t.rng.random(len(idle)) * len(lanes)).astype(np.int64)
-    ok = clear[pick]
-    if t.urban and cfg.spawn_rate > 0:  # arrivals at random times (a Poisson demand), not back to back
-        ok &= t.intent_rng.random(len(idle)) < cfg.spawn_rate * cfg.decision_period
+    ok = clear[pick] & due
     if not ok.any():
         return False
     rows, src = idle[ok], pick[ok]
@@ -66,6 +66,20 @@ def spawn(t: Traffic) -> bool:
         t.intention[rows[planned], LANE_CHANGE] = np.where(wish >= 0, wish, t.intention[rows[planned], LANE_CHANGE])
     t.stats["spawned"] += len(rows)
     return True
+
+
+def _places(t: Traffic) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where vehicles (re)enter: lanes (Q,), s (Q,) [m] and xy (Q, 2) [m] of the map's sources, then of the
+    spawn points (computed once per Traffic)."""
+    if t._spawn_places is None:
+        m, points = t.map, t.spawn_points
+        if points is None:
+            t._spawn_places = (m.sources, np.zeros(len(m.sources)), m.source_xy)
+        else:
+            t._spawn_places = (np.concatenate([m.sources, points.lane]),
+                               np.concatenate([np.zeros(len(m.sources)), points.s]),
+                               np.concatenate([m.source_xy, np.column_stack(m.lookup(points.lane, points.s)[:2])]))
+    return t._spawn_places
 
 
 def activate(t: Traffic, rows: np.ndarray, lane: np.ndarray, s: np.ndarray, speed_share=0.8) -> None:
