@@ -18,7 +18,7 @@ import pytest
 from mjdrive.agents.config import apply_overrides, load_config
 from mjdrive.agents.evaluate import evaluate
 from mjdrive.agents.train import train
-from mjdrive.envs.vector import RayVecEnv, SubprocessVecEnv, WorkerDied, make_vec_env
+from mjdrive.envs.vector import RayVecEnv, SubprocessVecEnv, WorkerDied, make_vec_env, worker_cpus
 from mjdrive.record import proto
 from mjdrive.record.reader import read_episode
 
@@ -284,3 +284,15 @@ def test_copies_that_do_not_split_evenly_over_the_workers_are_refused():
     with pytest.raises(ValueError, match="multiple of the workers"):
         make_vec_env("waypoints", "straight", num_envs=3, workers=2, observation="features")
 
+
+def test_vector_env_workers_each_run_on_their_own_cpu_where_there_are_enough():
+    """Worker w on the w-th CPU this process may use (results do not depend on it: the tests above run pinned);
+    more workers than CPUs: none pinned."""
+    cpus = sorted(os.sched_getaffinity(0))
+    assert worker_cpus(len(cpus)) == cpus and worker_cpus(len(cpus) + 1) == [None] * (len(cpus) + 1)
+    workers = min(2, len(cpus))
+    env = make_vec_env("waypoints", "straight", num_envs=2, workers=workers, observation="features")
+    try:
+        assert [os.sched_getaffinity(pid) for pid in env.pids] == [{cpu} for cpu in cpus[:workers]]
+    finally:
+        env.close()
