@@ -39,10 +39,38 @@ TRAIN_CASES = {  # label -> (config, overrides)
 }
 WORKERS = (0, 1, 2)
 PROJECTED = (16, 64)
+IDLE_BUSY = 0.25  # [cores]: the machine counts as idle below this over `IDLE_SAMPLE`
+IDLE_SAMPLE = 1.0  # [s]
+IDLE_WAIT = 60.0  # [s] at most before a measurement starts anyway
+STARTS: list[float] = []  # busy cores of the machine when each measurement started
 
 
 def load() -> str:
     return " / ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def cpu_busy(seconds: float = IDLE_SAMPLE) -> float:
+    """Cores busy on the whole machine over `seconds` (/proc/stat: also the processes of other containers,
+    which `ps` here does not list)."""
+    def sample() -> tuple[int, int]:
+        with open("/proc/stat") as stat:
+            ticks = [int(x) for x in stat.readline().split()[1:]]
+        idle = ticks[3] + ticks[4]  # idle, iowait
+        return sum(ticks[:8]) - idle, sum(ticks[:8])
+
+    busy0, total0 = sample()
+    time.sleep(seconds)
+    busy1, total1 = sample()
+    return (os.cpu_count() or 1) * (busy1 - busy0) / max(total1 - total0, 1)
+
+
+def wait_idle() -> float:
+    """Wait (at most `IDLE_WAIT`) until the machine is idle; the busy cores when the measurement starts."""
+    deadline = time.monotonic() + IDLE_WAIT
+    while (busy := cpu_busy()) >= IDLE_BUSY and time.monotonic() < deadline:
+        pass
+    STARTS.append(busy)
+    return busy
 
 
 def busy_processes() -> str:
@@ -75,6 +103,7 @@ def _eval_round(checkpoint: Path, episodes: int, seed: int) -> dict[int, dict]:
     out, reference = {}, None
     for workers in WORKERS:
         arrivals: list[float] = []
+        wait_idle()
         start = time.perf_counter()
         result = evaluate(checkpoint, episodes=episodes, seed=seed, workers=workers,
                           on_episode=lambda row, arrivals=arrivals: arrivals.append(time.perf_counter()))
@@ -109,6 +138,7 @@ def bench_collection(name: str, overrides: list[str], seconds: float, rounds: in
     best: dict = {}
     for _ in range(rounds):
         for key, settings in variants:
+            wait_idle()
             result = _collect({**config, **settings}, seconds)
             if key not in best or result["steps_per_s"] > best[key]["steps_per_s"]:
                 best[key] = result
@@ -138,6 +168,18 @@ def _collect(config: dict, seconds: float) -> dict:
             "batch_s": wall / steps, "num_envs": n, "nthread": config.get("nthread", 1)}
 
 
+def idle_line() -> str:
+    """How idle the machine was when the measurements started."""
+    if not STARTS:
+        return "No measurement"
+    busy = sorted(STARTS)
+    late = sum(b >= IDLE_BUSY for b in busy)
+    return (f"Each measurement waited (at most {IDLE_WAIT:g} s) for an idle machine (under {IDLE_BUSY:g} of a core "
+            f"busy over {IDLE_SAMPLE:g} s in /proc/stat, which also counts other containers' processes that `ps` "
+            f"does not list): busy cores at the starts min / median / max {busy[0]:.2f} / "
+            f"{busy[len(busy) // 2]:.2f} / {busy[-1]:.2f}; {late} of {len(busy)} started on a busy machine")
+
+
 def ratio(a: float, b: float) -> str:
     return f"{a / b:.2f}"
 
@@ -154,7 +196,7 @@ def report(evals: dict, trains: dict, args: argparse.Namespace, load_before: str
         f"1-min / 5-min / 15-min load average: {load_before} at the start, {load_after} at the end "
         f"(the run took {wall / 60:.1f} min). Every figure below comes from this one run; ratios compare figures of "
         f"this run; each is the best of {args.rounds} measurements (rows in turn, after a warm-up). Other busy "
-        "processes at the start: " + busy + ".",
+        "processes at the start: " + busy + ". " + idle_line() + ".",
         "",
         "## Evaluation (`mjdrive eval --workers N`)",
         "",
