@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import mjdrive.traffic.following as following
+import mjdrive.traffic.lane_changes as lane_changes
 import mjdrive.traffic.model as model
 from mjdrive import suite
 from mjdrive.envs.gym_env import make_env
@@ -54,6 +55,26 @@ def _checked_accelerations(monkeypatch) -> list[int]:
     return calls
 
 
+def _checked_lane_changes(monkeypatch) -> list[int]:
+    """Make every intended lane-change choice (urban) run both ways and compare the choice and the signals."""
+    calls = []
+    intended = lane_changes._intended
+
+    def both(t, right, left, near_merge):
+        signal = t.lc_signal.copy()
+        monkeypatch.setattr(lane_changes, "KERNELS", False)
+        expected, expected_signal = intended(t, right, left, near_merge), t.lc_signal.copy()
+        t.lc_signal = signal
+        monkeypatch.setattr(lane_changes, "KERNELS", True)
+        got = intended(t, right, left, near_merge)
+        assert expected == got and np.array_equal(expected_signal, t.lc_signal), (expected, got)
+        calls.append(got is not None)
+        return got
+
+    monkeypatch.setattr(lane_changes, "_intended", both)
+    return calls
+
+
 def _checked_plans(monkeypatch) -> list[int]:
     """Make every plan of poses run both ways and compare them."""
     calls = []
@@ -77,10 +98,11 @@ def _checked_plans(monkeypatch) -> list[int]:
     ("roundabout", "d210", "brake"),  # pedestrians, crosswalks, roundabout merges
     ("urban", "concatenated", "autopilot"),  # every conflict zone; the autopilot's advice (one follower)
     ("urban", "merge", "always_go"),
+    ("urban", "lane_change", "brake"),  # intended lane changes on the two-lane road
 ])
 def test_kernels_give_the_numpy_numbers_at_every_decision(monkeypatch, domain, task, policy):
     summaries, plans = _checked_summaries(monkeypatch), _checked_plans(monkeypatch)
-    accelerations = _checked_accelerations(monkeypatch)
+    accelerations, changes = _checked_accelerations(monkeypatch), _checked_lane_changes(monkeypatch)
     env = make_env(domain, task, random=3)
     act = (lambda obs: np.array([0.0, 0.0, 1.0])) if policy == "brake" else make_policy(policy, env, 3)
     observation, _ = env.reset(seed=3)
@@ -90,6 +112,10 @@ def test_kernels_give_the_numpy_numbers_at_every_decision(monkeypatch, domain, t
             observation, _ = env.reset()
     assert len(plans) >= 40 and len(accelerations) >= 40
     assert sum(n > 1 for n in summaries) >= 40  # the traffic's own decisions
+    if domain == "urban":
+        assert len(changes) >= 40  # the signals compared at every decision
+    if task == "lane_change":
+        assert any(changes)  # ... and lane changes chosen
     if policy == "autopilot":
         assert sum(n == 1 for n in summaries) >= 100  # the autopilot's advice, every control step
 
@@ -112,5 +138,50 @@ def test_same_trajectories_with_and_without_kernels(monkeypatch, domain, task):
     with_kernels = _trajectory_hash(domain, task, 200)
     monkeypatch.setattr(following, "KERNELS", False)
     monkeypatch.setattr(model, "KERNELS", False)
+    monkeypatch.setattr(lane_changes, "KERNELS", False)
     without = _trajectory_hash(domain, task, 200)
     assert with_kernels == without
+
+
+def _random_states(task: str, trials: int, seed: int = 0):
+    """A traffic of `task` after a while, then `trials` random edits of its state (positions along the lanes,
+    speeds, waiting times, lane-change progress, intentions, signals): the kernels' branches, rare and common."""
+    env = suite.load("urban", task, {"random": seed})
+    env.reset()
+    for _ in range(100):
+        env.step(np.array([0.0, 0.0, 1.0]))
+    t = env.task.traffic
+    rng = np.random.default_rng(seed)
+    lane_length = t.map.length[np.maximum(t.path[:, 0], 0)]
+    base = {name: getattr(t, name).copy() for name in ("s", "v", "stopped_time", "lc_dist", "lc_signal", "intention")}
+    table = t.approaches
+    lane0 = np.maximum(t.path[:, 0], 0)
+    for _ in range(trials):
+        t.s = rng.uniform(0.0, 1.0, t.nv) * lane_length
+        for row in rng.permutation(t.nv)[: t.nv // 2]:  # half of them near a give-way line of their lane
+            stops = table.stop[table.lane == lane0[row]]
+            if len(stops):
+                front = rng.choice(stops) + rng.uniform(-8.0, 3.0)
+                t.s[row] = np.clip(front - t.length[row] / 2, 0.0, lane_length[row])
+        t.v = rng.choice([0.0, 0.5, 3.0, 9.0, 14.0], t.nv) * rng.uniform(0.8, 1.2, t.nv)
+        t.stopped_time = rng.choice([0.0, 2.0, 3.0, 25.0], t.nv)
+        t.lc_dist = rng.choice([0.0, 7.0, 1e9], t.nv)
+        t.lc_signal = rng.choice([-1.0, t.time - 2.0, t.time], t.nv)
+        t.intention = rng.integers(0, 3, t.intention.shape)
+        t._refresh_vehicle_poses()
+        t._obstacle_cache = None
+        yield t
+    for name, value in base.items():
+        setattr(t, name, value)
+
+
+def test_kernels_agree_on_random_states(monkeypatch):
+    accelerations = _checked_accelerations(monkeypatch)
+    changes = _checked_lane_changes(monkeypatch)
+    for task in ("concatenated", "lane_change"):
+        for t in _random_states(task, 300):
+            model.accelerations(t, following.follower_table(t, t._context()), t._context())
+            lane0 = np.maximum(t.path[:, 0], 0)
+            lane_changes._intended(t, t.map.right[lane0], t.map.left[lane0], np.zeros(t.nv, dtype=bool))
+    assert len(accelerations) >= 600 and len(changes) >= 600  # the random states and the decisions before them
+    assert sum(changes) >= 20  # lane changes chosen in some of the states

@@ -433,3 +433,66 @@ def idm_accel(a, v, v0, ratio4, interaction, room, tau, max_decel):
         acc = _minimum(acc, (w - vf) / tau if w > 0 else -vf * vf / (2 * _maximum(room[f], 1e-3)))
         out[f] = _maximum(_minimum(acc, a[f]), -max_decel)
     return out
+
+
+@_jit
+def place_vehicles(x, y, sin_h, cos_h, d, yaw, ds_speed_v, accel, t_plan, active, hidden_pos, slots,
+                   out_pos, out_yaw, out_speed):
+    """Write the vehicles' poses into a plan: the centre line x, y [m] (S, NV) shifted by the lateral offset d
+    [m] (S or 1, NV) along the normal (-sin h, cos h) (both from numpy), their yaw [rad] (S, NV) and speed
+    max(v + a t, 0) [m/s]; inactive vehicles at their hidden pose. Into columns `slots` of out_pos (S, N, 3),
+    out_yaw (S, N), out_speed (S, N), as `Traffic._offset_poses` and `_make_plan` do."""
+    n_s, n_v = x.shape
+    one_d = d.shape[0] == 1
+    for i in range(n_s):
+        t = t_plan[i]
+        for n in range(n_v):
+            slot = slots[n]
+            if active[n]:
+                dn = d[0, n] if one_d else d[i, n]
+                out_pos[i, slot, 0] = x[i, n] - sin_h[i, n] * dn
+                out_pos[i, slot, 1] = y[i, n] + cos_h[i, n] * dn
+                out_pos[i, slot, 2] = 0.0
+                out_yaw[i, slot] = yaw[i, n]
+                out_speed[i, slot] = _maximum(ds_speed_v[n] + accel[n] * t, 0.0) * 1.0
+            else:
+                out_pos[i, slot, 0] = hidden_pos[n, 0]
+                out_pos[i, slot, 1] = hidden_pos[n, 1]
+                out_pos[i, slot, 2] = hidden_pos[n, 2]
+                out_yaw[i, slot] = 0.0
+                out_speed[i, slot] = _maximum(ds_speed_v[n] + accel[n] * t, 0.0) * 0.0
+
+
+@_jit
+def intended_lane_change(wish, lane0, left, right, near_merge, ending, n_successors, priority, active, lc_dist,
+                         s, lc_signal, lc_changing, xy, points, now, lane_change_length, zone_distance,
+                         signal_time, left_code, right_code):
+    """`lane_changes._intended`: update the signals `lc_signal` [s] (in place) and return the (row, side) of
+    the vehicle that has signalled longest for at least `signal_time` (side 0: right, 1: left), or (-1, -1)."""
+    best_row, best_signal = -1, INF
+    for n in range(len(wish)):
+        w = wish[n]
+        if ending[lane0[n]]:  # a lane that ends beside a neighbour must be left, whatever the intention
+            goes_on = left[n] >= 0 and n_successors[max(left[n], 0)] > 0
+            w = left_code if goes_on else right_code
+        target = left[n] if w == left_code else (right[n] if w == right_code else -1)
+        if not (ending[lane0[n]] or priority[max(target, 0)] >= priority[lane0[n]]):
+            target = -1  # never into a lane of lower rank
+        able = active[n] and target >= 0 and lc_dist[n] >= lane_change_length and s[n] > 1.0 and not near_merge[n]
+        if able and len(points):  # not across a conflict zone: the move takes a while
+            nearest = INF
+            for r in range(len(points)):
+                nearest = _minimum(nearest, np.hypot(xy[n, 0] - points[r, 0], xy[n, 1] - points[r, 1]))
+            able = nearest > zone_distance
+        if able and lc_signal[n] < 0:
+            lc_signal[n] = now
+        elif not (able or lc_changing[n]):
+            lc_signal[n] = -1.0
+        if able and lc_signal[n] >= 0 and now - lc_signal[n] >= signal_time and lc_signal[n] < best_signal:
+            best_row, best_signal = n, lc_signal[n]
+    if best_row < 0:
+        return -1, -1
+    w = wish[best_row]
+    if ending[lane0[best_row]]:
+        w = left_code if (left[best_row] >= 0 and n_successors[max(left[best_row], 0)] > 0) else right_code
+    return best_row, (0 if w == right_code else 1)

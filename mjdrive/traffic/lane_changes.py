@@ -6,8 +6,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from mjdrive.traffic import kernels
 from mjdrive.traffic.geometry import smoothstep
 from mjdrive.traffic.intentions import KEEP, LANE_CHANGE, LEFT, RIGHT
+from mjdrive.traffic.kernels import KERNELS
 
 ZONE_CLEARANCE = 8.0  # [m] intended lane changes start at least this plus their length from any zone point
 EGO_IDM = (2.0, 3.0, 1.5)  # [m/s^2, m/s^2, s] a, b, T assumed for the ego as a follower
@@ -58,8 +60,18 @@ def _random(t: Traffic, right: np.ndarray, left: np.ndarray, near_merge: np.ndar
 
 def _intended(t: Traffic, right: np.ndarray, left: np.ndarray, near_merge: np.ndarray) -> tuple[int, int] | None:
     """Vehicles whose intention has a neighbour lane on its side signal; the one signalling longest for at
-    least `signal_time` tries (row, side), or None."""
+    least `signal_time` tries (row, side), or None. (`kernels.intended_lane_change` with numba: the same.)"""
     cfg = t.config
+    if KERNELS:
+        points = t.approaches.point if t.approaches is not None else np.zeros((0, 2))
+        signal = t.lc_signal.copy()
+        row, side = kernels.intended_lane_change(
+            np.ascontiguousarray(t.intention[:, LANE_CHANGE]), np.maximum(t.path[:, 0], 0), left, right, near_merge,
+            t.map.ending, t.map.n_successors, t.roles.priority, t.active, t.lc_dist, t.s, signal, t.lc_changing,
+            np.ascontiguousarray(t._current_pos[t.vehicle_slots, :2]), np.ascontiguousarray(points), t.time,
+            cfg.lane_change_length, ZONE_CLEARANCE + cfg.lane_change_length, cfg.signal_time - 1e-9, LEFT, RIGHT)
+        t.lc_signal = signal
+        return None if row < 0 else (row, side)
     wish = t.intention[:, LANE_CHANGE]
     lane0 = np.maximum(t.path[:, 0], 0)
     # A lane that ends beside a neighbour (an on-ramp) must be left, whatever the intention.

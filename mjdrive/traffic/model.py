@@ -461,8 +461,13 @@ class Traffic:
         out_yaw = np.empty((len(t), self.n))
         out_speed = np.zeros((len(t), self.n))
         vs = self.vehicle_slots
-        out_pos[:, vs], out_yaw[:, vs] = self._offset_poses(ds, x, y, h)
-        out_speed[:, vs] = np.maximum(v + a * t, 0.0) * self.active[None]
+        if KERNELS:
+            d, yaw = self._lateral(ds, h)
+            kernels.place_vehicles(x, y, np.sin(h), np.cos(h), d, yaw, self.v, self.accel, self._t_plan, self.active,
+                                   self._hidden[vs], vs, out_pos, out_yaw, out_speed)
+        else:
+            out_pos[:, vs], out_yaw[:, vs] = self._offset_poses(ds, x, y, h)
+            out_speed[:, vs] = np.maximum(v + a * t, 0.0) * self.active[None]
         if self.np_:
             ps = self.pedestrian_slots
             out_pos[:, ps], out_yaw[:, ps], out_speed[:, ps] = pedestrian_poses(self, t)
@@ -492,15 +497,19 @@ class Traffic:
         lane = np.maximum(path.ravel()[flat], 0)
         return self.map.lookup(lane, p - before.ravel()[flat])
 
-    def _offset_poses(self, ds: np.ndarray, x: np.ndarray, y: np.ndarray, h: np.ndarray):
-        """Poses (S, NV, 3), yaw (S, NV) at the vehicles' lateral offsets (and lane changes under way) from
-        the centre line x, y [m], heading h [rad] after moving ds (S, NV) [m]."""
+    def _lateral(self, ds: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Lateral offset d [m] (S or 1, NV) from the centre line and yaw [rad] (S, NV) after moving ds (S, NV) [m]
+        (lane changes under way move across along a smoothstep; h: the centre line's heading)."""
         if np.any(self.lc_dist < self.config.lane_change_length):  # lane changes under way
             sm, dsm = smoothstep((self.lc_dist[None] + ds) / self.config.lane_change_length)
             d = self.d_pref[None] + self.lc_shift[None] * (1.0 - sm)
-            yaw = h + np.arctan(-self.lc_shift[None] * dsm / self.config.lane_change_length)
-        else:
-            d, yaw = self.d_pref[None], h
+            return d, h + np.arctan(-self.lc_shift[None] * dsm / self.config.lane_change_length)
+        return self.d_pref[None], h
+
+    def _offset_poses(self, ds: np.ndarray, x: np.ndarray, y: np.ndarray, h: np.ndarray):
+        """Poses (S, NV, 3), yaw (S, NV) at the vehicles' lateral offsets (and lane changes under way) from
+        the centre line x, y [m], heading h [rad] after moving ds (S, NV) [m]."""
+        d, yaw = self._lateral(ds, h)
         pos = np.zeros(x.shape + (3,))
         pos[..., 0] = x - np.sin(h) * d
         pos[..., 1] = y + np.cos(h) * d
