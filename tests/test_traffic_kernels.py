@@ -4,6 +4,7 @@ over whole trajectories. (Without numba the kernels run as plain Python, slowly,
 
 from __future__ import annotations
 
+import copy
 import hashlib
 
 import numpy as np
@@ -75,6 +76,29 @@ def _checked_lane_changes(monkeypatch) -> list[int]:
     return calls
 
 
+def _checked_successors(monkeypatch) -> list[int]:
+    """Make every choice of successors under urban rules run both ways (same draws) and compare the choice,
+    the intentions and ring progress it updates."""
+    calls = []
+    choose = model.Traffic._choose_successor
+
+    def both(self, lane, rows=None):
+        saved = (copy.deepcopy(self.rng.bit_generator.state), self.intention.copy(), self.ring_passed.copy())
+        monkeypatch.setattr(model, "KERNELS", False)
+        expected = choose(self, lane, rows)
+        after = (self.intention.copy(), self.ring_passed.copy())
+        self.rng.bit_generator.state, self.intention, self.ring_passed = saved
+        monkeypatch.setattr(model, "KERNELS", True)
+        got = choose(self, lane, rows)
+        assert np.array_equal(expected, got), (expected, got)
+        assert np.array_equal(after[0], self.intention) and np.array_equal(after[1], self.ring_passed)
+        calls.append(len(lane))
+        return got
+
+    monkeypatch.setattr(model.Traffic, "_choose_successor", both)
+    return calls
+
+
 def _checked_plans(monkeypatch) -> list[int]:
     """Make every plan of poses run both ways and compare them."""
     calls = []
@@ -103,6 +127,7 @@ def _checked_plans(monkeypatch) -> list[int]:
 def test_kernels_give_the_numpy_numbers_at_every_decision(monkeypatch, domain, task, policy):
     summaries, plans = _checked_summaries(monkeypatch), _checked_plans(monkeypatch)
     accelerations, changes = _checked_accelerations(monkeypatch), _checked_lane_changes(monkeypatch)
+    successors = _checked_successors(monkeypatch)
     env = make_env(domain, task, random=3)
     act = (lambda obs: np.array([0.0, 0.0, 1.0])) if policy == "brake" else make_policy(policy, env, 3)
     observation, _ = env.reset(seed=3)
@@ -113,7 +138,7 @@ def test_kernels_give_the_numpy_numbers_at_every_decision(monkeypatch, domain, t
     assert len(plans) >= 40 and len(accelerations) >= 40
     assert sum(n > 1 for n in summaries) >= 40  # the traffic's own decisions
     if domain == "urban":
-        assert len(changes) >= 40  # the signals compared at every decision
+        assert len(changes) >= 40 and len(successors) >= 5  # the signals at every decision, paths that go on
     if task == "lane_change":
         assert any(changes)  # ... and lane changes chosen
     if policy == "autopilot":
@@ -177,11 +202,13 @@ def _random_states(task: str, trials: int, seed: int = 0):
 
 def test_kernels_agree_on_random_states(monkeypatch):
     accelerations = _checked_accelerations(monkeypatch)
-    changes = _checked_lane_changes(monkeypatch)
+    changes, successors = _checked_lane_changes(monkeypatch), _checked_successors(monkeypatch)
     for task in ("concatenated", "lane_change"):
         for t in _random_states(task, 300):
             model.accelerations(t, following.follower_table(t, t._context()), t._context())
             lane0 = np.maximum(t.path[:, 0], 0)
             lane_changes._intended(t, t.map.right[lane0], t.map.left[lane0], np.zeros(t.nv, dtype=bool))
+            t._choose_successor(t.path[:, 1].copy(), np.arange(t.nv))
     assert len(accelerations) >= 600 and len(changes) >= 600  # the random states and the decisions before them
     assert sum(changes) >= 20  # lane changes chosen in some of the states
+    assert len(successors) >= 600

@@ -496,3 +496,72 @@ def intended_lane_change(wish, lane0, left, right, near_merge, ending, n_success
     if ending[lane0[best_row]]:
         w = left_code if (left[best_row] >= 0 and n_successors[max(left[best_row], 0)] > 0) else right_code
     return best_row, (0 if w == right_code else 1)
+
+
+@_jit
+def choose_successors(rows, lane, u, successors, turn, ring, ring_exit, intention, ring_passed, ego_exit,
+                      crossroad, roundabout, before_code, after_code):
+    """`Traffic._choose_successor` under urban rules for vehicles `rows` on `lane` (K,), with their uniform
+    draws u (K,): a random successor that honours their intentions (`intentions.successor_preference`), -1
+    for dead ends; then `intentions.note_ring_progress` (updates `intention` and `ring_passed` in place)."""
+    n_k, n_w = len(rows), successors.shape[1]
+    chosen = np.empty(n_k, dtype=np.int64)
+    allowed = np.zeros(n_w, dtype=np.bool_)
+    valid_w = np.zeros(n_w, dtype=np.bool_)
+    for k in range(n_k):
+        row = rows[k]
+        lane0 = max(lane[k], 0)
+        wanted = intention[row, crossroad]
+        before = intention[row, roundabout] == before_code
+        passed = ring_passed[row]
+        any_ok = any_take = any_exit = False
+        for j in range(n_w):
+            succ = successors[lane0, j]
+            s0 = max(succ, 0)
+            valid = succ >= 0
+            exit_ = valid and ring_exit[s0]
+            valid_w[j] = valid
+            allowed[j] = valid and (turn[s0] < 0 or turn[s0] == wanted or ring_exit[s0])
+            any_exit |= exit_
+        if ego_exit >= 0 and any_exit:
+            for j in range(n_w):
+                succ = successors[lane0, j]
+                exit_ = valid_w[j] and ring_exit[max(succ, 0)]
+                take = exit_ and succ != ego_exit and (not passed if before else passed)
+                any_take |= take
+            for j in range(n_w):
+                succ = successors[lane0, j]
+                exit_ = valid_w[j] and ring_exit[max(succ, 0)]
+                if any_take:
+                    allowed[j] = exit_ and succ != ego_exit and (not passed if before else passed)
+                else:
+                    allowed[j] = valid_w[j] and not exit_
+        for j in range(n_w):
+            any_ok |= allowed[j]
+        count = 0
+        for j in range(n_w):
+            if not any_ok:
+                allowed[j] = valid_w[j]
+            count += allowed[j]
+        if lane[k] < 0:
+            count = 0
+        pick = np.int64(np.floor(u[k] * max(count, 1)))
+        column, running = 0, 0
+        for j in range(n_w):
+            running += allowed[j]
+            if running > pick:
+                column = j
+                break
+        chosen[k] = successors[lane0, column] if count > 0 else -1
+    if ego_exit >= 0:  # note_ring_progress
+        for k in range(n_k):
+            row, lane0, c = rows[k], max(lane[k], 0), chosen[k]
+            at_ego_exit = False
+            for j in range(n_w):
+                at_ego_exit |= successors[lane0, j] == ego_exit
+            passed = at_ego_exit and c != ego_exit and c >= 0
+            if passed:
+                intention[row, roundabout] = after_code
+            left_ring = c >= 0 and not ring[max(c, 0)] and not ring_exit[max(c, 0)]
+            ring_passed[row] = (ring_passed[row] or passed) and not left_ring
+    return chosen

@@ -48,7 +48,16 @@ from mjdrive.traffic import kernels
 from mjdrive.traffic.conflicts import ApproachTable
 from mjdrive.traffic.following import accelerations, follower_table
 from mjdrive.traffic.geometry import smoothstep, yaw_quat
-from mjdrive.traffic.intentions import SCENARIOS, LaneRoles, note_ring_progress, successor_preference
+from mjdrive.traffic.intentions import (
+    AFTER,
+    BEFORE,
+    CROSSROAD,
+    ROUNDABOUT,
+    SCENARIOS,
+    LaneRoles,
+    note_ring_progress,
+    successor_preference,
+)
 from mjdrive.traffic.kernels import KERNELS
 from mjdrive.traffic.lane_changes import lane_changes
 from mjdrive.traffic.lanes import TrafficMap
@@ -215,6 +224,11 @@ class Traffic:
         m = self.map
         valid = lane >= 0
         lane0 = np.maximum(lane, 0)
+        if self.urban and rows is not None and len(rows) and KERNELS:  # the same in one compiled pass
+            roles = self.roles
+            return kernels.choose_successors(
+                rows, lane, self.rng.random(len(lane)), m.successors, roles.turn, roles.ring, roles.ring_exit,
+                self.intention, self.ring_passed, int(self.ego_exit), CROSSROAD, ROUNDABOUT, BEFORE, AFTER)
         if self.urban and rows is not None and len(rows):
             allowed = successor_preference(self, rows, lane)  # (K, W)
             count = allowed.sum(axis=1) * valid
