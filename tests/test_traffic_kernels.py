@@ -99,6 +99,26 @@ def _checked_successors(monkeypatch) -> list[int]:
     return calls
 
 
+def _checked_contexts(monkeypatch) -> list[int]:
+    """Make every decision's lane-graph tables (and the autopilot's) run both ways and compare them."""
+    calls = []
+    context = model.Traffic._context
+
+    def both(self):
+        monkeypatch.setattr(model, "KERNELS", False)
+        expected = context(self)
+        monkeypatch.setattr(model, "KERNELS", True)
+        got = context(self)
+        assert expected.keys() == got.keys()
+        for key in expected:
+            assert expected[key].dtype == got[key].dtype and np.array_equal(expected[key], got[key]), key
+        calls.append(1)
+        return got
+
+    monkeypatch.setattr(model.Traffic, "_context", both)
+    return calls
+
+
 def _checked_plans(monkeypatch) -> list[int]:
     """Make every plan of poses run both ways and compare them."""
     calls = []
@@ -127,7 +147,7 @@ def _checked_plans(monkeypatch) -> list[int]:
 def test_kernels_give_the_numpy_numbers_at_every_decision(monkeypatch, domain, task, policy):
     summaries, plans = _checked_summaries(monkeypatch), _checked_plans(monkeypatch)
     accelerations, changes = _checked_accelerations(monkeypatch), _checked_lane_changes(monkeypatch)
-    successors = _checked_successors(monkeypatch)
+    successors, contexts = _checked_successors(monkeypatch), _checked_contexts(monkeypatch)
     env = make_env(domain, task, random=3)
     act = (lambda obs: np.array([0.0, 0.0, 1.0])) if policy == "brake" else make_policy(policy, env, 3)
     observation, _ = env.reset(seed=3)
@@ -135,7 +155,7 @@ def test_kernels_give_the_numpy_numbers_at_every_decision(monkeypatch, domain, t
         observation, _, terminated, truncated, _ = env.step(act(observation))
         if terminated or truncated:
             observation, _ = env.reset()
-    assert len(plans) >= 40 and len(accelerations) >= 40
+    assert len(plans) >= 40 and len(accelerations) >= 40 and len(contexts) >= 40
     assert sum(n > 1 for n in summaries) >= 40  # the traffic's own decisions
     if domain == "urban":
         assert len(changes) >= 40 and len(successors) >= 5  # the signals at every decision, paths that go on
@@ -203,6 +223,7 @@ def _random_states(task: str, trials: int, seed: int = 0):
 def test_kernels_agree_on_random_states(monkeypatch):
     accelerations = _checked_accelerations(monkeypatch)
     changes, successors = _checked_lane_changes(monkeypatch), _checked_successors(monkeypatch)
+    contexts = _checked_contexts(monkeypatch)
     for task in ("concatenated", "lane_change"):
         for t in _random_states(task, 300):
             model.accelerations(t, following.follower_table(t, t._context()), t._context())
@@ -211,4 +232,4 @@ def test_kernels_agree_on_random_states(monkeypatch):
             t._choose_successor(t.path[:, 1].copy(), np.arange(t.nv))
     assert len(accelerations) >= 600 and len(changes) >= 600  # the random states and the decisions before them
     assert sum(changes) >= 20  # lane changes chosen in some of the states
-    assert len(successors) >= 600
+    assert len(successors) >= 600 and len(contexts) >= 1200

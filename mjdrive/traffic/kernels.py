@@ -565,3 +565,31 @@ def choose_successors(rows, lane, u, successors, turn, ring, ring_exit, intentio
             left_ring = c >= 0 and not ring[max(c, 0)] and not ring_exit[max(c, 0)]
             ring_passed[row] = (ring_passed[row] or passed) and not left_ring
     return chosen
+
+
+@_jit
+def path_context(vehicle_path, active, ego_path, lane_length, n_lanes):
+    """`Traffic._context`'s lane-graph tables: the paths (A, PATH) of the vehicles (-1 rows for inactive ones)
+    and the ego (last row, `ego_path`), the distance (A, PATH) [m] from each agent's lane start to the start
+    of each lane on its path, and `offset` (A, n_lanes + 1) [m] to the start of every lane (inf off the
+    path; the first occurrence on a path wins; column n_lanes collects the -1 lanes and is inf)."""
+    nv, n_p = vehicle_path.shape
+    path = np.full((nv + 1, n_p), -1, dtype=np.int64)
+    for r in range(nv):
+        if active[r]:
+            for j in range(n_p):
+                path[r, j] = vehicle_path[r, j]
+    for j in range(len(ego_path)):
+        path[nv, j] = ego_path[j]
+    start = np.zeros((nv + 1, n_p))
+    offset = np.full((nv + 1, n_lanes + 1), INF)
+    for r in range(nv + 1):
+        for j in range(1, n_p):
+            previous = path[r, j - 1]
+            length = lane_length[previous] if previous >= 0 else INF
+            start[r, j] = length if j == 1 else start[r, j - 1] + length
+        for j in range(n_p - 1, -1, -1):
+            lane = path[r, j]
+            offset[r, lane if lane >= 0 else n_lanes] = start[r, j]
+        offset[r, n_lanes] = INF
+    return path, start, offset

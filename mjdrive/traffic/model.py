@@ -73,6 +73,7 @@ from mjdrive.traffic.params import (
 from mjdrive.traffic.pedestrians import commit_pedestrians, pedestrian_poses, pedestrian_starts
 from mjdrive.traffic.spawning import SpawnPoints, activate, spawn
 
+_NO_PATH = np.zeros(0, dtype=np.int64)
 WAITING_SPEED = 1.0  # [m/s] a vehicle slower than this is waiting (urban rules: its patience runs down)
 
 @dataclass
@@ -432,18 +433,24 @@ class Traffic:
         of each agent's current lane to the start of every lane on its path (inf for lanes off its path),
         so that a point (lane, s) lies offset[:, lane] + s ahead of the start of each agent's lane."""
         ego, nv = self.ego, self.nv
-        path = np.full((nv + 1, PATH), -1, dtype=np.int64)
-        path[:nv] = self.path
-        path[:nv][~self.active] = -1
         s, v, length = self._ctx_s, self._ctx_v, self._ctx_len
         s[:nv], v[:nv], length[:nv] = self.s, self.v, self.length
         s[nv] = v[nv] = length[nv] = 0.0
+        ego_path = _NO_PATH
         if ego is not None:
             v[nv], length[nv] = max(ego.speed, 0.0), ego.length
             if ego.path is not None and len(ego.path) and ego.path[0] >= 0:
-                k = min(len(ego.path), PATH)
-                path[nv, :k] = ego.path[:k]
+                ego_path = np.asarray(ego.path[:PATH], dtype=np.int64)
                 s[nv] = ego.s
+        if KERNELS:  # the same tables in one compiled pass
+            path, start, offset = kernels.path_context(self.path, self.active, ego_path, self.map.length,
+                                                       self.map.n_lanes)
+            return {"lane": path[:, 0], "s": s.copy(), "v": v.copy(), "length": length.copy(), "path": path,
+                    "start": start, "offset": offset}
+        path = np.full((nv + 1, PATH), -1, dtype=np.int64)
+        path[:nv] = self.path
+        path[:nv][~self.active] = -1
+        path[nv, : len(ego_path)] = ego_path
         plen = np.where(path >= 0, self.map.length[path], np.inf)
         start = np.zeros((nv + 1, PATH))
         np.cumsum(plen[:, :-1], axis=1, out=start[:, 1:])
