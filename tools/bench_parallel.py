@@ -50,8 +50,7 @@ def load() -> str:
 
 
 def cpu_busy(seconds: float = IDLE_SAMPLE) -> float:
-    """Cores busy on the whole machine over `seconds` (/proc/stat: also the processes of other containers,
-    which `ps` here does not list)."""
+    """Cores busy on the whole machine over `seconds` (/proc/stat: every process, this one's too)."""
     def sample() -> tuple[int, int]:
         with open("/proc/stat") as stat:
             ticks = [int(x) for x in stat.readline().split()[1:]]
@@ -175,9 +174,9 @@ def idle_line() -> str:
     busy = sorted(STARTS)
     late = sum(b >= IDLE_BUSY for b in busy)
     return (f"Each measurement waited (at most {IDLE_WAIT:g} s) for an idle machine (under {IDLE_BUSY:g} of a core "
-            f"busy over {IDLE_SAMPLE:g} s in /proc/stat, which also counts other containers' processes that `ps` "
-            f"does not list): busy cores at the starts min / median / max {busy[0]:.2f} / "
-            f"{busy[len(busy) // 2]:.2f} / {busy[-1]:.2f}; {late} of {len(busy)} started on a busy machine")
+            f"busy over {IDLE_SAMPLE:g} s in /proc/stat, the whole machine): busy cores at the starts min / "
+            f"median / max {busy[0]:.2f} / {busy[len(busy) // 2]:.2f} / {busy[-1]:.2f}; {late} of {len(busy)} "
+            "started on a busy machine")
 
 
 def ratio(a: float, b: float) -> str:
