@@ -352,26 +352,35 @@ def _fold(state, gap: float, lead: float, s0: float, v: float, vT: float, den: f
 
 
 @_jit
-def path_poses(s, v, accel, t_plan, before, path, last_index,
-               base, lane_length, first, last_segment, g, inv, x0, dx, y0, dy, h0, dh):
-    """Where each vehicle is at each substep of a decision period: distance moved ds (S, NV) [m] and the
-    centre-line x, y [m], heading [rad] there (S, NV), as `Traffic._make_plan` and `TrafficMap.lookup`
-    compute them (closed-form motion at constant acceleration, stopping at zero speed)."""
-    n_s, n_v, n_p = len(t_plan), len(s), before.shape[1]
+def plan_distances(v, accel, t_plan):
+    """Distance [m] (S, NV) each vehicle moves by each substep time t_plan (S,) [s] at speed v [m/s] and constant
+    acceleration [m/s^2], stopping at zero speed (as `Traffic._make_plan`)."""
+    n_s, n_v = len(t_plan), len(v)
     ds = np.empty((n_s, n_v))
-    x = np.empty((n_s, n_v))
-    y = np.empty((n_s, n_v))
-    h = np.empty((n_s, n_v))
     for i in range(n_s):
         t = t_plan[i]
         for n in range(n_v):
             vn, an = v[n], accel[n]
             if an < 0 and vn + an * t < 0:
-                d = vn * vn / _maximum(-2 * an, 1e-9)
+                ds[i, n] = vn * vn / _maximum(-2 * an, 1e-9)
             else:
-                d = vn * t + 0.5 * an * t * t
-            ds[i, n] = d
-            p = s[n] + d
+                ds[i, n] = vn * t + 0.5 * an * t * t
+    return ds
+
+
+@_jit
+def centre_poses(s, ds, before, path, last_index, base, lane_length, first, last_segment, g, inv, x0, dx, y0, dy,
+                 h0, dh):
+    """Centre-line x, y [m] and heading [rad] (S, NV) of each vehicle's lane after moving ds (S, NV) [m] from s
+    along its path (`before` (NV, PATH) [m]: to the start of each path lane), as `Traffic._centre_poses` and
+    `TrafficMap.lookup` compute them."""
+    n_s, n_v, n_p = ds.shape[0], len(s), before.shape[1]
+    x = np.empty((n_s, n_v))
+    y = np.empty((n_s, n_v))
+    h = np.empty((n_s, n_v))
+    for i in range(n_s):
+        for n in range(n_v):
+            p = s[n] + ds[i, n]
             k = 0
             for j in range(1, n_p):
                 if p >= before[n, j]:
@@ -385,7 +394,7 @@ def path_poses(s, v, accel, t_plan, before, path, last_index,
             x[i, n] = x0[seg] + u * dx[seg]
             y[i, n] = y0[seg] + u * dy[seg]
             h[i, n] = h0[seg] + u * dh[seg]
-    return ds, x, y, h
+    return x, y, h
 
 
 @_jit

@@ -468,16 +468,12 @@ class Traffic:
         to the start of each path lane, if known)."""
         t = self._t_plan[:, None]  # (S, 1)
         v, a = self.v[None], self.accel[None]
-        if KERNELS:  # the same numbers in one compiled pass (kernels.path_poses)
-            m = self.map
-            ds, x, y, h = kernels.path_poses(
-                self.s, self.v, self.accel, self._t_plan, self._path_starts() if start is None else start,
-                self.path, self._last_path_index(), m.base, m.length, m.first, m.last_segment, m.g, m._inv,
-                m._x0, m._dx, m._y0, m._dy, m._h0, m._dh)
+        if KERNELS:  # the same numbers in one compiled pass
+            ds = kernels.plan_distances(self.v, self.accel, self._t_plan)
         else:
             stopped = (a < 0) & (v + a * t < 0)
             ds = np.where(stopped, v * v / np.maximum(-2 * a, 1e-9), v * t + 0.5 * a * t * t)  # (S, NV)
-            x, y, h = self._centre_poses(ds, start)
+        x, y, h = self._centre_poses(ds, start)
         out_pos = np.empty((len(t), self.n, 3))
         out_yaw = np.empty((len(t), self.n))
         out_speed = np.zeros((len(t), self.n))
@@ -510,13 +506,16 @@ class Traffic:
         """Centre-line x, y [m] and heading [rad] (S, NV) of the vehicles' lanes after moving ds (S, NV) [m]."""
         if before is None:
             before = self._path_starts()
-        path = self.path
+        path, m = self.path, self.map
+        if KERNELS:  # the same numbers in one compiled pass
+            return kernels.centre_poses(self.s, ds, before, path, self._last_path_index(), m.base, m.length, m.first,
+                                        m.last_segment, m.g, m._inv, m._x0, m._dx, m._y0, m._dy, m._h0, m._dh)
         p = self.s[None] + ds
         k = (p[..., None] >= before[None, :, 1:]).sum(-1)  # (S, NV) index into the path
         k = np.minimum(k, self._last_path_index()[None])  # stay on a dead end's last lane
         flat = self._row_base + k
         lane = np.maximum(path.ravel()[flat], 0)
-        return self.map.lookup(lane, p - before.ravel()[flat])
+        return m.lookup(lane, p - before.ravel()[flat])
 
     def _lateral(self, ds: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Lateral offset d [m] (S or 1, NV) from the centre line and yaw [rad] (S, NV) after moving ds (S, NV) [m]
