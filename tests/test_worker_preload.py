@@ -4,6 +4,7 @@ the worker itself (a GL display, threads)."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -29,3 +30,20 @@ def test_the_preload_opens_no_gl_display_and_starts_no_thread():
             "[m for m in sys.modules if m.split('.')[0] in ('dm_control', 'mujoco', 'OpenGL')])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.split("\n")[0] == "1 ['numba', 'scipy.signal'] []"
+
+
+def test_the_traffic_kernels_keep_their_cache_directory_after_the_preload():
+    """numba reads NUMBA_CACHE_DIR at its import: imported by the preload first, it must still find the
+    kernels' compiled code where `mjdrive.traffic.kernels` keeps it (not in the source tree)."""
+    code = ("{}import mjdrive.traffic.kernels as k; from numba.core import config; "
+            "print(config.CACHE_DIR, k.cache_dir(), k.gap_summary._cache._cache_path)")
+    env = {key: value for key, value in os.environ.items() if key != "NUMBA_CACHE_DIR"}
+
+    def paths(prefix: str) -> list[str]:
+        out = subprocess.run([sys.executable, "-c", code.format(prefix)], capture_output=True, text=True,
+                             check=True, env=env).stdout
+        return out.split()
+
+    plain, preloaded = paths(""), paths("import mjdrive.envs.preload; ")
+    assert preloaded == plain
+    assert preloaded[0] == preloaded[1] and preloaded[2].startswith(preloaded[0])

@@ -15,6 +15,8 @@ from __future__ import annotations
 import gc
 import importlib
 import importlib.util
+import os
+from pathlib import Path
 
 PRELOADED = ("scipy.signal",)  # imported when installed
 
@@ -26,11 +28,20 @@ def _installed(name: str) -> bool:
         return False
 
 
+def numba_cache_dir() -> str:
+    """NUMBA_CACHE_DIR, set to the traffic kernels' default (`mjdrive.traffic.kernels` sets the same when it is
+    imported before numba) where unset: numba reads it once, at its import, and would otherwise look for the
+    compiled kernels in the source tree, not find them and compile them again (~10 s) in every worker."""
+    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "mjdrive" / "numba"
+    return os.environ.setdefault("NUMBA_CACHE_DIR", str(cache))
+
+
 def warm_numba() -> bool:
-    """Import numba and fill its CPU typing and target registries (what loading any cached kernel needs first);
-    False when numba is not installed."""
+    """Import numba (after `numba_cache_dir`) and fill its CPU typing and target registries (what loading any
+    cached kernel needs first); False when numba is not installed."""
     if not _installed("numba"):
         return False
+    numba_cache_dir()
     from numba.core.registry import cpu_target
 
     cpu_target.typing_context.refresh()
