@@ -201,8 +201,8 @@ def report(evals: dict, trains: dict, args: argparse.Namespace, load_before: str
         "",
         f"{args.episodes} greedy episodes of roundabout/d210 (seeds {args.seed}...) per row, the same episodes at "
         "every worker count (rows checked identical). env steps/s = steps of all episodes / wall time of the whole "
-        "`evaluate` call, worker start-up included (the forkserver, which preloads torch, was started before the "
-        "first row).",
+        "`evaluate` call, worker start-up included (the forkserver, which preloads torch, scipy.signal and numba, "
+        "was started before the first row).",
         "",
         "| observation | checkpoint | steps | in process | 1 worker | 2 workers | 2 workers / 1 worker "
         "| 1 worker / in process | first episode back [s]: in process, 1, 2 workers |",
