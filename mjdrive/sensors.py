@@ -32,11 +32,20 @@ class CollisionSensor:
         self.code[model.geom(ground).id] = 0
         self.last_other_geom = -1  # geom id the ego touched last, for logs
         self.pending = False  # a contact was sampled since the last `collided`
+        # the world's contact sensors (`world.add_contact_sensors`): the ego's contacts, those with the ground
+        names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_SENSOR, i) for i in range(model.nsensor)]
+        found = [f"{prefix}contacts" in names, f"{prefix}ground_contacts" in names]
+        self._counts = (int(model.sensor_adr[names.index(f"{prefix}contacts")]),
+                        int(model.sensor_adr[names.index(f"{prefix}ground_contacts")])) if all(found) else None
 
     def __call__(self, data: mujoco.MjData) -> bool:
         """Whether the ego touches another geom now."""
         if data.ncon == 0:
             return False
+        if self._counts is not None:  # the sensors tell whether there is any; the contacts, which one
+            counts = data.sensordata
+            if counts[self._counts[0]] <= counts[self._counts[1]]:
+                return False
         pairs = data.contact.geom  # (ncon, 2)
         codes = self.code[pairs]
         hit = codes[:, 0] * codes[:, 1] == 2

@@ -66,6 +66,7 @@ def build_spec(
         if buildings:
             _add_buildings(spec, road_map, np.random.default_rng(seed))
     add_vehicle(spec, vehicle, prefix="ego/")
+    add_contact_sensors(spec, "ego/")
     chassis = spec.body("ego/chassis")
     top = chassis.add_camera(name="ego/top", pos=[0, 0, 45], mode=mujoco.mjtCamLight.mjCAMLIGHT_TRACK)
     top.fovy = 60
@@ -77,6 +78,18 @@ def build_spec(
             contype=OBSTACLE_CONTYPE, conaffinity=OBSTACLE_CONTYPE,
         )
     return spec
+
+
+def add_contact_sensors(spec: mujoco.MjSpec, prefix: str = "ego/", ground: str = "ground") -> None:
+    """Two MuJoCo contact sensors on the car `prefix`: how many contacts its bodies have (`{prefix}contacts`)
+    and how many of them with the ground (`{prefix}ground_contacts`); more of the first means it touches
+    something else (`sensors.CollisionSensor` reads them after every physics chunk, at no Python cost)."""
+    for name, reftype, refname in (("contacts", mujoco.mjtObj.mjOBJ_UNKNOWN, ""),
+                                   ("ground_contacts", mujoco.mjtObj.mjOBJ_GEOM, ground)):
+        sensor = spec.add_sensor(name=f"{prefix}{name}", type=mujoco.mjtSensor.mjSENS_CONTACT,
+                                 objtype=mujoco.mjtObj.mjOBJ_XBODY, objname=f"{prefix}chassis")
+        sensor.reftype, sensor.refname = reftype, refname
+        sensor.intprm[0], sensor.intprm[1], sensor.intprm[2] = 1, 0, 1  # data "found", no reduction, one slot
 
 
 def build(road_map: RoadMap | None, **kwargs) -> mujoco.MjModel:

@@ -15,8 +15,8 @@ from __future__ import annotations
 import gc
 import importlib
 import importlib.util
-import os
-from pathlib import Path
+
+from mjdrive.numba_cache import numba_cache_dir
 
 PRELOADED = ("scipy.signal",)  # imported when installed
 
@@ -28,17 +28,9 @@ def _installed(name: str) -> bool:
         return False
 
 
-def numba_cache_dir() -> str:
-    """NUMBA_CACHE_DIR, set to the traffic kernels' default (`mjdrive.traffic.kernels` sets the same when it is
-    imported before numba) where unset: numba reads it once, at its import, and would otherwise look for the
-    compiled kernels in the source tree, not find them and compile them again (~10 s) in every worker."""
-    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "mjdrive" / "numba"
-    return os.environ.setdefault("NUMBA_CACHE_DIR", str(cache))
-
-
 def warm_numba() -> bool:
-    """Import numba (after `numba_cache_dir`) and fill its CPU typing and target registries (what loading any
-    cached kernel needs first); False when numba is not installed."""
+    """Import numba (after setting its cache directory, `mjdrive.numba_cache`) and fill its CPU typing and
+    target registries (what loading any cached kernel needs first); False when numba is not installed."""
     if not _installed("numba"):
         return False
     numba_cache_dir()

@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-if "NUMBA_CACHE_DIR" not in os.environ:  # a writable place for compiled code whatever the install
-    os.environ["NUMBA_CACHE_DIR"] = str(Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
-                                        / "mjdrive" / "numba")
+from mjdrive.numba_cache import numba_cache_dir
+
+numba_cache_dir()  # before numba's import: a writable place for compiled code whatever the install
 try:
     from numba import njit
 except ImportError:  # the numpy code runs instead
@@ -38,7 +38,7 @@ INF = np.inf
 
 def cache_dir() -> Path:
     """Where numba keeps the compiled kernels."""
-    return Path(os.environ["NUMBA_CACHE_DIR"])
+    return numba_cache_dir()
 
 
 def announce_compilation() -> None:
