@@ -340,14 +340,20 @@ BOUNCE_XML = """<mujoco><option timestep="{dt}" gravity="0 0 0"/><worldbody>
 </worldbody></mujoco>"""
 
 
+@pytest.mark.parametrize("contact_sensors", [True, False])
 @pytest.mark.parametrize("dt", DTS)
-def test_collision_sensor_catches_a_bump_that_bounces_off_within_a_control_step(dt):
+def test_collision_sensor_catches_a_bump_that_bounces_off_within_a_control_step(dt, contact_sensors):
     """A 1500 kg box hits a wall at 3 m/s and bounces back: with MuJoCo's default contact (solref 0.02) it
     touches for ~0.08 s, so a check at the end of a 0.2 s control step misses it; sampling every 0.02 s
-    (the tasks' physics chunks) does not."""
+    (the tasks' physics chunks) does not. With the world's contact sensors (`world.add_contact_sensors`) or
+    without (the contact list)."""
     from mjdrive.sensors import CollisionSensor
+    from mjdrive.world import add_contact_sensors
 
-    model = mujoco.MjModel.from_xml_string(BOUNCE_XML.format(dt=dt))
+    spec = mujoco.MjSpec.from_string(BOUNCE_XML.format(dt=dt))
+    if contact_sensors:
+        add_contact_sensors(spec, "ego/")
+    model = spec.compile()
     data = mujoco.MjData(model)
     data.qvel[0] = 3.0  # [m/s] towards the wall, 0.2 m away
     sensor = CollisionSensor(model)
@@ -362,6 +368,31 @@ def test_collision_sensor_catches_a_bump_that_bounces_off_within_a_control_step(
     assert 0.02 < dt * sum(touching) < 0.2  # [s] in contact
     assert sensor.collided(data) and not sensor.collided(data)  # reported once, then cleared
     assert model.geom(sensor.last_other_geom).name == "wall"
+    assert (sensor._counts is not None) == contact_sensors
+
+
+def test_contact_sensors_agree_with_the_contact_list():
+    """In traffic, with a reckless ego that hits road users: the collision sensor's answer from the world's
+    contact sensors equals the scan of the contact list at every physics chunk."""
+    from mjdrive import suite
+    from mjdrive.sensors import CollisionSensor
+
+    env = suite.load("roundabout", "d210", {"random": 1})
+    scan = CollisionSensor(env.physics.model.ptr)
+    scan._counts = None  # the contact list only
+    sensor = env.task.collision_sensor
+    assert sensor._counts is not None
+    answers = []
+    sample = sensor.sample
+    sensor.sample = lambda data: (answers.append((scan(data), sensor(data))), sample(data))
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        env.reset()
+        for _ in range(150):
+            if env.step(np.array([1.0, rng.uniform(-0.3, 0.3), 0.0])).last():
+                break
+    assert len(answers) > 1000 and sum(hit for hit, _ in answers) >= 5
+    assert all(hit == answer for hit, answer in answers)
 
 
 @pytest.mark.parametrize("dt", DTS)
