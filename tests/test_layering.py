@@ -38,7 +38,7 @@ LAYERS = {  # top to bottom
     "parts": ("mjdrive.traffic", "mjdrive.sensors", "mjdrive.vehicle", "mjdrive.control", "mjdrive.world"),
     "roads": ("mjdrive.roads",),
     "utilities": ("mjdrive.config", "mjdrive.progress", "mjdrive.comfort", "mjdrive.assets", "mjdrive.version",
-                  "mjdrive.run_folder", "mjdrive.numba_cache"),
+                  "mjdrive.run_folder", "mjdrive.compiled"),
 }
 RANK = {name: rank for rank, name in enumerate(reversed(LAYERS))}  # higher rank: higher layer
 

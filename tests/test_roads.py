@@ -374,3 +374,38 @@ def test_crafted_routes_are_four_disjoint_routes_of_the_right_shape():
             if a < b:
                 gap = np.maximum(boxes[a][0] - boxes[b][1], boxes[b][0] - boxes[a][1])
                 assert np.hypot(*np.maximum(gap, 0.0)) >= 200.0, (a, b)
+
+
+def test_footprint_is_box_points_of_one_box():
+    """The per-step footprint (scalars) gives `box_points`' corners bit for bit."""
+    from mjdrive.roads.geometry import BOX_CORNERS, box_points, footprint
+
+    rng = np.random.default_rng(0)
+    for _ in range(2000):
+        x, y, yaw = rng.normal(0, 100), rng.normal(0, 100), rng.uniform(-7, 7)
+        length, width = rng.uniform(0.5, 6.0), rng.uniform(0.5, 2.5)
+        expected = box_points((x, y), yaw, BOX_CORNERS * (0.5 * length, 0.5 * width))
+        assert np.array_equal(footprint(x, y, yaw, length, width), expected)
+
+
+def test_route_frame_kernel_gives_the_numpy_numbers(monkeypatch):
+    """RouteFrame's compiled projection (plain Python without numba) equals the numpy code bit for bit, search
+    window included, for points near and off a roundabout route."""
+    import mjdrive.roads.route_frame as route_frame
+    from mjdrive.roads.junctions import roundabout_routes
+    from mjdrive.roads.lane import Lane
+
+    rm = roads.roundabout()
+    rng = np.random.default_rng(1)
+    for route in list(roundabout_routes(rm).values())[:4]:
+        lane = Lane(rm.route_polyline(route), name="route")
+        numpy_frame, kernel_frame = route_frame.RouteFrame(lane), route_frame.RouteFrame(lane)
+        for step in range(200):
+            centre = np.array(lane.position(rng.uniform(0, lane.length))) + rng.normal(0, 2.0, 2)
+            points = np.vstack([centre[None], centre + rng.normal(0, 2.0, (4, 2))])
+            monkeypatch.setattr(route_frame, "KERNELS", False)
+            expected = numpy_frame(points, full=step % 40 == 0)
+            monkeypatch.setattr(route_frame, "KERNELS", True)
+            got = kernel_frame(points, full=step % 40 == 0)
+            assert np.array_equal(expected[0], got[0]) and np.array_equal(expected[1], got[1])
+            assert numpy_frame.segment == kernel_frame.segment

@@ -16,7 +16,7 @@ import gc
 import importlib
 import importlib.util
 
-from mjdrive.numba_cache import numba_cache_dir
+from mjdrive.compiled import numba_cache_dir
 
 PRELOADED = ("scipy.signal",)  # imported when installed
 
@@ -29,7 +29,7 @@ def _installed(name: str) -> bool:
 
 
 def warm_numba() -> bool:
-    """Import numba (after setting its cache directory, `mjdrive.numba_cache`) and fill its CPU typing and
+    """Import numba (after setting its cache directory, `mjdrive.compiled`) and fill its CPU typing and
     target registries (what loading any cached kernel needs first); False when numba is not installed."""
     if not _installed("numba"):
         return False

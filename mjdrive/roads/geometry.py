@@ -36,8 +36,13 @@ def box_points(centre: ArrayLike, heading: ArrayLike, local: ArrayLike) -> np.nd
 
 
 def footprint(x: float, y: float, yaw: float, length: float, width: float) -> np.ndarray:
-    """The four corners (4,2) [m] of a vehicle's rectangle: front-left, front-right, rear-right, rear-left."""
-    return box_points((x, y), yaw, BOX_CORNERS * (0.5 * length, 0.5 * width))
+    """The four corners (4,2) [m] of a vehicle's rectangle: front-left, front-right, rear-right, rear-left
+    (`box_points` of one box, in scalars for the per-step path: the same operations, numpy's cosine and sine)."""
+    c, s = float(np.cos(yaw)), float(np.sin(yaw))
+    x, y = float(x), float(y)
+    hl, hw = 0.5 * length, 0.5 * width
+    return np.array([[x + c * hl - s * hw, y + s * hl + c * hw], [x + c * hl - s * -hw, y + s * hl + c * -hw],
+                     [x + c * -hl - s * -hw, y + s * -hl + c * -hw], [x + c * -hl - s * hw, y + s * -hl + c * hw]])
 
 
 def unit(heading: float) -> np.ndarray:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from mjdrive.compiled import KERNELS, jit
 from mjdrive.roads import _spatial as sp
 from mjdrive.roads.lane import Lane
 
@@ -34,6 +35,10 @@ class RouteFrame:
         """(s, d) arrays (K,) for points (K,2); the first point moves the search window."""
         n = len(self.x0)
         lo, hi = (0, n) if full else (max(self.segment + self.WINDOW[0], 0), min(self.segment + self.WINDOW[1], n))
+        if KERNELS:  # the same numbers in one compiled pass
+            s, d, self.segment = _project(np.ascontiguousarray(points, dtype=np.float64), self.x0, self.y0, self.tx,
+                                          self.ty, self.length, self.s0, lo, hi)
+            return s, d
         tx, ty = self.tx[lo:hi], self.ty[lo:hi]
         px, py = points[:, 0:1] - self.x0[lo:hi], points[:, 1:2] - self.y0[lo:hi]  # (K, W)
         along = px * tx + py * ty
@@ -44,3 +49,29 @@ class RouteFrame:
         rows = np.arange(len(points))
         self.segment = lo + int(j[0])
         return self.s0[lo + j] + clamped[rows, j], side[rows, j]
+
+
+@jit
+def _project(points, x0, y0, tx, ty, length, s0, lo, hi):
+    """`RouteFrame.__call__` for the segments lo..hi: (s, d) (K,) and the first point's segment, operation for
+    operation as the numpy code (the first of equally near segments)."""
+    n_k = len(points)
+    s = np.empty(n_k)
+    d = np.empty(n_k)
+    first = lo
+    for k in range(n_k):
+        best, best_j, best_along, best_side = np.inf, -1, 0.0, 0.0
+        for j in range(lo, hi):
+            px, py = points[k, 0] - x0[j], points[k, 1] - y0[j]
+            along = px * tx[j] + py * ty[j]
+            side = tx[j] * py - ty[j] * px
+            clamped = min(max(along, 0.0), length[j])
+            beyond = along - clamped
+            distance = beyond * beyond + side * side
+            if distance < best or best_j < 0:
+                best, best_j, best_along, best_side = distance, j, clamped, side
+        s[k] = s0[best_j] + best_along
+        d[k] = best_side
+        if k == 0:
+            first = best_j
+    return s, d, first

@@ -9,60 +9,27 @@ interaction term and the least stopping room. It repeats the numpy expressions o
 differently from libm), and `tests/test_traffic_kernels.py` checks that both give identical arrays at every
 decision of simulated traffic on every map.
 
-numba is an optional dependency (the `fast` extra, installed by `make`): without it `KERNELS` is False
-and the traffic runs the numpy code, which is the specification of this module. Compiled code is cached
-on disk (NUMBA_CACHE_DIR, by default under ~/.cache/mjdrive), so only the first process on a machine pays
-the compilation (a few seconds).
+numba is an optional dependency (the `fast` extra, installed by `make`; `mjdrive.compiled`): without it
+`KERNELS` is False and the traffic runs the numpy code, which is the specification of this module. Compiled
+code is cached on disk (by default under ~/.cache/mjdrive), so only the first process on a machine pays the
+compilation (a few seconds).
 """
 
 from __future__ import annotations
 
-import os
-import sys
-from pathlib import Path
-
 import numpy as np
 
-from mjdrive.numba_cache import numba_cache_dir
-
-numba_cache_dir()  # before numba's import: a writable place for compiled code whatever the install
-try:
-    from numba import njit
-except ImportError:  # the numpy code runs instead
-    KERNELS = False
-else:
-    KERNELS = os.environ.get("MJDRIVE_NO_KERNELS", "") in ("", "0")
+from mjdrive.compiled import KERNELS as KERNELS
+from mjdrive.compiled import inline as _inline
+from mjdrive.compiled import jit as _jit
+from mjdrive.compiled import numba_cache_dir
 
 INF = np.inf
 
 
-def cache_dir() -> Path:
+def cache_dir():
     """Where numba keeps the compiled kernels."""
     return numba_cache_dir()
-
-
-def announce_compilation() -> None:
-    """Say on stderr, once per process, that the kernels are being compiled when the cache has none of them
-    yet (the first env on a machine then waits a few seconds in silence otherwise)."""
-    global _announced
-    if _announced or not KERNELS:
-        return
-    _announced = True
-    if not any(cache_dir().rglob("kernels.gap_summary*.nbi")):
-        print(f"mjdrive: compiling the traffic kernels once for this machine (about 10 s; cache {cache_dir()})",
-              file=sys.stderr, flush=True)
-
-
-_announced = False
-
-
-def _jit(fn):
-    return njit(cache=True, nogil=True)(fn) if KERNELS else fn
-
-
-def _inline(fn):
-    """A helper of the kernel, inlined into it (no call, no reference counting of its array arguments)."""
-    return njit(inline="always", cache=True, nogil=True)(fn) if KERNELS else fn
 
 
 @_inline

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from mjdrive.compiled import announce_compilation
 from mjdrive.roads import RoadMap
 from mjdrive.roads.conflicts import ConflictZones
 from mjdrive.traffic import kernels
@@ -98,7 +99,7 @@ class Traffic:
         right of way at every crossing and merge of the table, intentions, intention-driven lane changes
         with a signalling phase; without it, entries yield at merges by gap acceptance (the roundabout)."""
         self.config = cfg = config or TrafficConfig()
-        kernels.announce_compilation()
+        announce_compilation()
         self.map = road_map if isinstance(road_map, TrafficMap) else TrafficMap(road_map, cfg.lateral_accel)
         self.urban = conflicts is not None
         self.zones = conflicts
