@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mjdrive.compiled import KERNELS, jit
+from mjdrive.compiled import KERNELS, announce_compilation, jit
 from mjdrive.roads import _spatial as sp
 from mjdrive.roads.lane import Lane
 
@@ -30,6 +30,7 @@ class RouteFrame:
         self.tx, self.ty = table[:, sp.TX].copy(), table[:, sp.TY].copy()
         self.s0 = table[:, sp.S0].copy()
         self.segment = 0
+        announce_compilation()
 
     def __call__(self, points: np.ndarray, full: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """(s, d) arrays (K,) for points (K,2); the first point moves the search window."""

@@ -1,6 +1,7 @@
-"""`python -m mjdrive.traffic.compile_kernels`: compile the traffic kernels (`kernels`) into the on-disk cache
-once, by running a few decisions of roundabout and urban traffic (`make install` does it), so that no env
-pays the compilation later. Prints where the cache is and how long it took."""
+"""`python -m mjdrive.traffic.compile_kernels`: compile the kernels (the traffic's, `kernels`, and the route
+frame's) into the on-disk cache once, by running a route frame and a few decisions of roundabout and urban
+traffic (`make install` does it), so that no env pays the compilation later. Prints where the cache is and how
+long it took."""
 
 from __future__ import annotations
 
@@ -10,6 +11,8 @@ import time
 import numpy as np
 
 from mjdrive import roads
+from mjdrive.roads.lane import Lane
+from mjdrive.roads.route_frame import RouteFrame
 from mjdrive.traffic import kernels
 from mjdrive.traffic.model import Traffic
 from mjdrive.traffic.params import counts_to_kinds
@@ -17,10 +20,12 @@ from mjdrive.traffic.urban import urban_traffic
 
 
 def compile_kernels() -> float:
-    """Run every kernel on real traffic (the roundabout with pedestrians, the concatenated urban map); the
-    wall time [s] it took (the compilation, or loading it from the cache)."""
+    """Run every kernel: a route frame's projection, and real traffic (the roundabout with pedestrians, the
+    concatenated urban map); the wall time [s] it took (the compilation, or loading it from the cache)."""
     start = time.perf_counter()
     rm = roads.roundabout()
+    route = next(iter(roads.roundabout_routes(rm).values()))
+    RouteFrame(Lane(rm.route_polyline(route), name="route"))(np.zeros((5, 2)), full=True)
     for traffic in (Traffic(rm, counts_to_kinds({"car": 6, "motorcycle": 1, "pedestrian": 2})),
                     urban_traffic(roads.concatenated())):
         traffic.reset(np.random.default_rng(0))
@@ -31,10 +36,10 @@ def compile_kernels() -> float:
 
 def main() -> int:
     if not kernels.KERNELS:
-        print("traffic kernels: numba is not installed (pip install 'mjdrive[fast]'), the numpy code runs")
+        print("kernels: numba is not installed (pip install 'mjdrive[fast]'), the numpy code runs")
         return 0
-    print(f"traffic kernels: compiling into {kernels.cache_dir()} ...", flush=True)
-    print(f"traffic kernels: ready in {compile_kernels():.1f} s")
+    print(f"kernels: compiling into {kernels.cache_dir()} ...", flush=True)
+    print(f"kernels: ready in {compile_kernels():.1f} s")
     return 0
 
 
