@@ -217,3 +217,29 @@ def test_a_waiting_minor_road_car_gets_its_turn_within_half_a_minute():
     overlaps, worst, _ = free_run(traffic, 240.0)
     assert overlaps == 0 and worst < 30.0
 
+
+
+def test_intention_draws_are_generator_choice():
+    """`intentions.draw` makes the same draws and values as `Generator.choice(n, size, p=shares)` (what the
+    committed urban results were made with), for any shares and any number of vehicles."""
+    from types import SimpleNamespace
+
+    from mjdrive.traffic.intentions import SCENARIOS, draw
+
+    rng = np.random.default_rng(0)
+    for _ in range(300):
+        shares = [tuple(float(x) for x in rng.random(n) * rng.choice([0.0, 0.99], n, p=[0.2, 0.8]) + 1e-3)
+                  for n in (3, 3, 2, 2)]
+        cfg = TrafficConfig(lane_change_intentions=shares[0], turn_intentions=shares[1], merge_intentions=shares[2],
+                            roundabout_intentions=shares[3])
+        rows = np.sort(rng.choice(12, int(rng.integers(1, 6)), replace=False))
+        seed = int(rng.integers(2**31))
+        t = SimpleNamespace(config=cfg, intent_rng=np.random.default_rng(seed), intention=np.zeros((12, 4), int),
+                            ring_passed=np.ones(12, dtype=bool))
+        draw(t, rows)
+        reference = np.random.default_rng(seed)
+        for column, p in enumerate(shares):
+            p = np.asarray(p) / np.sum(p)
+            assert np.array_equal(t.intention[rows, column], reference.choice(len(p), size=len(rows), p=p))
+        assert t.intent_rng.random() == reference.random()  # the same draws consumed
+        assert not t.ring_passed[rows].any() and len(SCENARIOS) == 4

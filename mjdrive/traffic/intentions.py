@@ -13,6 +13,7 @@ Observations normalise them to [0, 1] as value / 2 (§5.1.2).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -68,13 +69,31 @@ class LaneRoles:
 
 
 def draw(t: Traffic, rows: np.ndarray) -> None:
-    """New intentions for vehicles `rows` (at spawn), from the configured shares."""
-    cfg, rng = t.config, t.intent_rng
+    """New intentions for vehicles `rows` (at spawn), from the configured shares: for each scenario a uniform
+    draw per vehicle against the shares' cumulative distribution (what `Generator.choice(n, size, p=shares)`
+    does, the same draws and values, without its checks of p on every call)."""
+    rng = t.intent_rng
+    for column, cdf in intention_cdfs(t.config):
+        t.intention[rows, column] = cdf.searchsorted(rng.random(len(rows)), side="right")
+    t.ring_passed[rows] = False
+
+
+@functools.lru_cache(maxsize=32)
+def intention_cdfs(cfg) -> tuple[tuple[int, np.ndarray], ...]:
+    """(column, cumulative distribution) of each scenario's intention shares of a TrafficConfig (normalised as
+    `Generator.choice` normalises p)."""
+    out = []
     for column, shares in ((LANE_CHANGE, cfg.lane_change_intentions), (CROSSROAD, cfg.turn_intentions),
                            (MERGE, cfg.merge_intentions), (ROUNDABOUT, cfg.roundabout_intentions)):
         p = np.asarray(shares, dtype=float)
-        t.intention[rows, column] = rng.choice(len(p), size=len(rows), p=p / p.sum())
-    t.ring_passed[rows] = False
+        if not (np.all(p >= 0) and p.sum() > 0):
+            raise ValueError(f"intention shares must be >= 0 and not all 0, got {shares}")
+        p = p / p.sum()
+        cdf = p.cumsum()
+        cdf /= cdf[-1]
+        cdf.flags.writeable = False
+        out.append((column, cdf))
+    return tuple(out)
 
 
 def successor_preference(t: Traffic, rows: np.ndarray, lane: np.ndarray) -> np.ndarray:
