@@ -53,6 +53,10 @@ def test_drive_by_keyboard_moves_the_car_and_logs_a_replayable_episode(display, 
     try:
         found = xdotool(display, "search", "--sync", "--name", "MuJoCo")
         assert found.returncode == 0, found.stderr
+        # keys go to the focused window: focus the viewer and let it settle (on a busy machine the first keys
+        # could otherwise arrive before it takes input)
+        xdotool(display, "windowfocus", "--sync", found.stdout.split()[0])
+        time.sleep(0.5)
         xdotool(display, "key", "Up", "Up", "Up", "Up")  # throttle 0.8
         time.sleep(1.5)
         screenshot = ImageGrab.grab(xdisplay=display)
