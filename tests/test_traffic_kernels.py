@@ -12,6 +12,7 @@ import pytest
 
 import mjdrive.traffic.following as following
 import mjdrive.traffic.lane_changes as lane_changes
+import mjdrive.traffic.merges as merges
 import mjdrive.traffic.model as model
 from mjdrive import suite
 from mjdrive.envs.gym_env import make_env
@@ -167,23 +168,28 @@ def test_same_trajectories_with_and_without_kernels(monkeypatch, domain, task):
     assert with_kernels == without
 
 
-def _random_states(task: str, trials: int, seed: int = 0):
+def _random_states(name: str, trials: int, seed: int = 0):
     """A traffic of `task` after a while, then `trials` random edits of its state (positions along the lanes,
     speeds, waiting times, lane-change progress, intentions, signals): the kernels' branches, rare and common."""
-    env = suite.load("urban", task, {"random": seed})
+    domain, task = name.split("/")
+    env = suite.load(domain, task, {"random": seed})
     env.reset()
     for _ in range(100):
         env.step(np.array([0.0, 0.0, 1.0]))
     t = env.task.traffic
     rng = np.random.default_rng(seed)
     lane_length = t.map.length[np.maximum(t.path[:, 0], 0)]
-    base = {name: getattr(t, name).copy() for name in ("s", "v", "stopped_time", "lc_dist", "lc_signal", "intention")}
-    table = t.approaches
+    base = {name: getattr(t, name).copy()
+            for name in ("s", "v", "stopped_time", "lc_dist", "lc_signal", "intention", "active")}
+    base_active = t.active.copy()
+    # give-way lines (urban) or yield lines (roundabout entries): (lane, front-bumper position [m])
+    lines = ((t.approaches.lane, t.approaches.stop) if t.approaches is not None
+             else (t.map.yield_lane, t.map.yield_stop))
     lane0 = np.maximum(t.path[:, 0], 0)
     for _ in range(trials):
         t.s = rng.uniform(0.0, 1.0, t.nv) * lane_length
         for row in rng.permutation(t.nv)[: t.nv // 2]:  # half of them near a give-way line of their lane
-            stops = table.stop[table.lane == lane0[row]]
+            stops = lines[1][lines[0] == lane0[row]]
             if len(stops):
                 front = rng.choice(stops) + rng.uniform(-8.0, 3.0)
                 t.s[row] = np.clip(front - t.length[row] / 2, 0.0, lane_length[row])
@@ -192,6 +198,10 @@ def _random_states(task: str, trials: int, seed: int = 0):
         t.lc_dist = rng.choice([0.0, 7.0, 1e9], t.nv)
         t.lc_signal = rng.choice([-1.0, t.time - 2.0, t.time], t.nv)
         t.intention = rng.integers(0, 3, t.intention.shape)
+        if rng.random() < 0.5:  # sparse traffic: gaps open and close at merges and crossings
+            t.active = base_active & (rng.random(t.nv) < 0.3)
+        else:
+            t.active = base_active.copy()
         t._refresh_vehicle_poses()
         t._obstacle_cache = None
         yield t
@@ -203,12 +213,32 @@ def test_kernels_agree_on_random_states(monkeypatch):
     accelerations = _checked_accelerations(monkeypatch)
     changes, successors = _checked_lane_changes(monkeypatch), _checked_successors(monkeypatch)
     contexts = _checked_contexts(monkeypatch)
-    for task in ("concatenated", "lane_change"):
-        for t in _random_states(task, 300):
+    for name in ("urban/concatenated", "urban/lane_change", "roundabout/d210"):
+        for t in _random_states(name, 300):
             model.accelerations(t, following.follower_table(t, t._context()), t._context())
             lane0 = np.maximum(t.path[:, 0], 0)
-            lane_changes._intended(t, t.map.right[lane0], t.map.left[lane0], np.zeros(t.nv, dtype=bool))
-            t._choose_successor(t.path[:, 1].copy(), np.arange(t.nv))
-    assert len(accelerations) >= 600 and len(changes) >= 600  # the random states and the decisions before them
+            if t.urban:
+                lane_changes._intended(t, t.map.right[lane0], t.map.left[lane0], np.zeros(t.nv, dtype=bool))
+                t._choose_successor(t.path[:, 1].copy(), np.arange(t.nv))
+    assert len(accelerations) >= 900 and len(changes) >= 600  # the random states and the decisions before them
     assert sum(change is not None for change in changes) >= 20  # lane changes chosen in some of the states
-    assert len(successors) >= 600 and len(contexts) >= 1200
+    assert len(successors) >= 600 and len(contexts) >= 1800
+
+
+def test_roundabout_merge_state_agrees_in_sparse_traffic():
+    """The roundabout entries' gap check in the kernel (`kernels.merge_state`) against the numpy code, with a
+    few vehicles only, so that gaps open and close: conflicts and commitments both ways, bit for bit."""
+    seen = set()
+    for t in _random_states("roundabout/d210", 200, seed=2):
+        t.active &= np.random.default_rng(len(seen) + int(t.s.sum())).random(t.nv) < 0.1
+        t._refresh_vehicle_poses()
+        ctx = t._context()
+        conflict, committed = following._merge_state(t, ctx, t.config.accept_gap)
+        m = t.map
+        assert np.array_equal(conflict, merges.merge_conflicts(t, ctx, t.config.accept_gap))
+        on_entry = ctx["lane"][:, None] == m.yield_lane[None]
+        past = (ctx["s"] + ctx["length"] / 2)[:, None] - m.yield_stop[None]
+        expected = (on_entry & ((past > 1.0) | ((past > 0.5) & (ctx["v"] >= 1.0)[:, None]))).any(axis=0)
+        assert np.array_equal(committed, expected)
+        seen |= {("conflict", bool(c)) for c in conflict} | {("committed", bool(c)) for c in committed}
+    assert seen == {("conflict", True), ("conflict", False), ("committed", True), ("committed", False)}

@@ -209,12 +209,15 @@ def gap_summary_kernel(t: Traffic, f: dict, ctx: dict, kappa: np.ndarray, den: n
 
 def _merge_state(t: Traffic, ctx: dict, accept_gap: float) -> tuple[np.ndarray, np.ndarray]:
     """Roundabout merges (Y,): whether a priority agent comes too soon (`merges.merge_conflicts`), and whether
-    an entering agent is committed past its yield line (circulating vehicles keep out of its way)."""
-    m = t.map
-    on_entry = ctx["lane"][:, None] == m.yield_lane[None]  # (A, Y)
-    past = (ctx["s"] + ctx["length"] / 2)[:, None] - m.yield_stop[None]
-    committed = (on_entry & ((past > 1.0) | ((past > 0.5) & (ctx["v"] >= 1.0)[:, None]))).any(axis=0)
-    return merge_conflicts(t, ctx, accept_gap), committed
+    an entering agent is committed past its yield line (circulating vehicles keep out of its way), in the
+    kernel (`kernels.merge_state`)."""
+    m, cfg = t.map, t.config
+    changing = np.flatnonzero(t.active & (t.lc_dist < cfg.lane_change_length))
+    return kernels.merge_state(
+        np.ascontiguousarray(ctx["lane"]), ctx["s"], ctx["v"], ctx["length"], ctx["offset"], m.yield_lane,
+        m.yield_merge, m.yield_stop, np.ascontiguousarray(t._current_pos[t.vehicle_slots[changing], :2]),
+        t.v[changing], t.length[changing], np.ascontiguousarray(m.merge_xy), accept_gap, cfg.merge_clearance,
+        cfg.merge_speed, cfg.merge_clearance + 3.0)
 
 
 @functools.lru_cache(maxsize=16)

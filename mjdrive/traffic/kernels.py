@@ -569,3 +569,34 @@ def path_context(vehicle_path, active, ego_path, lane_length, n_lanes):
             offset[r, lane if lane >= 0 else n_lanes] = start[r, j]
         offset[r, n_lanes] = INF
     return path, start, offset
+
+
+@_jit
+def merge_state(lane_a, s_a, v_a, len_a, offset_a, yield_lane, yield_merge, yield_stop, changing_xy, changing_v,
+                changing_len, merge_xy, accept_gap, merge_clearance, merge_speed, start_clearance):
+    """Roundabout merges (Y,): `merges.merge_conflicts` (a priority agent reaches the merge point too soon,
+    still occupies the start of the merged lane, or is moving over near it) and whether an entering agent is
+    committed past its yield line, as `following._merge_state` computes them."""
+    n_y, n_a = len(yield_lane), len(s_a)
+    conflict = np.zeros(n_y, dtype=np.bool_)
+    committed = np.zeros(n_y, dtype=np.bool_)
+    for y in range(n_y):
+        merge = yield_merge[y]
+        for a in range(n_a):
+            to_merge = offset_a[a, merge]
+            via = np.isfinite(offset_a[a, yield_lane[y]])
+            dist = INF if (via or to_merge <= 0) else to_merge - (s_a[a] + len_a[a] / 2)
+            soon = dist - merge_clearance < _maximum(v_a[a], merge_speed) * accept_gap
+            on_start = lane_a[a] == merge and s_a[a] - len_a[a] / 2 < start_clearance
+            if soon or on_start:
+                conflict[y] = True
+            if lane_a[a] == yield_lane[y]:
+                past = s_a[a] + len_a[a] / 2 - yield_stop[y]
+                if past > 1.0 or (past > 0.5 and v_a[a] >= 1.0):
+                    committed[y] = True
+        for c in range(len(changing_v)):
+            near = np.hypot(changing_xy[c, 0] - merge_xy[y, 0], changing_xy[c, 1] - merge_xy[y, 1])
+            reach = _maximum(changing_v[c], merge_speed) * accept_gap + merge_clearance
+            if near - changing_len[c] / 2 < reach:
+                conflict[y] = True
+    return conflict, committed
