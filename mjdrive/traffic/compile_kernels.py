@@ -11,6 +11,7 @@ import time
 import numpy as np
 
 from mjdrive import roads
+from mjdrive.compiled import numba_cache_dir
 from mjdrive.roads.lane import Lane
 from mjdrive.roads.route_frame import RouteFrame
 from mjdrive.traffic import kernels
@@ -38,7 +39,7 @@ def main() -> int:
     if not kernels.KERNELS:
         print("kernels: numba is not installed (pip install 'mjdrive[fast]'), the numpy code runs")
         return 0
-    print(f"kernels: compiling into {kernels.cache_dir()} ...", flush=True)
+    print(f"kernels: compiling into {numba_cache_dir()} ...", flush=True)
     print(f"kernels: ready in {compile_kernels():.1f} s")
     return 0
 

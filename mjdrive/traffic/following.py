@@ -3,7 +3,6 @@ stop lines) as columns of one gap table, and the IDM acceleration with a safety 
 
 from __future__ import annotations
 
-import functools
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -26,7 +25,6 @@ from mjdrive.traffic.conflicts import (
     courteous_agents,
 )
 from mjdrive.traffic.kernels import KERNELS
-from mjdrive.traffic.lane_changes import ending_lanes
 from mjdrive.traffic.merges import merge_conflicts
 from mjdrive.traffic.pedestrians import occupied_crossings
 
@@ -155,7 +153,7 @@ def gap_summary(t: Traffic, f: dict, ctx: dict, kappa: np.ndarray, den: np.ndarr
     if t.urban:  # the end of an ending lane (an on-ramp) is a wall until the vehicle has moved over
         k_end = (path >= 0).sum(axis=1) - 1  # the last lane of the planned path
         last = path[np.arange(len(s)), np.maximum(k_end, 0)]
-        ends = ending_lanes(t)[np.maximum(last, 0)] & (last >= 0)
+        ends = m.ending[np.maximum(last, 0)] & (last >= 0)
         to_end = offset[np.arange(len(s)), np.maximum(last, 0)] + m.length[np.maximum(last, 0)] - front
         gap = np.concatenate([gap, np.where(ends, to_end, np.inf)[:, None]], axis=1)
         lead = np.concatenate([lead, np.zeros((len(s), 1))], axis=1)
@@ -195,7 +193,7 @@ def gap_summary_kernel(t: Traffic, f: dict, ctx: dict, kappa: np.ndarray, den: n
         c(xy_o), np.cos(yaw_o), np.sin(yaw_o), v_o, hl_o, hw_o, idx_o,
         m.cross_lane, c(m.cross_s), blocked,
         m.yield_lane[:n_y], m.yield_stop[:n_y], m.yield_merge[:n_y], conflict, committed,
-        ending_lanes(t) if urban else _no_ending(m.n_lanes), m.length,
+        m.ending, m.length,
         table.lane, table.s_in, table.s_out, table.other, table.o_in, table.o_out, table.yields, table.tie,
         table.timed, table.merge, table.stop, table.courtesy, c(table.point), table.partner,
         waited_all, courteous_a, changing, c(changing_xy), t.nv,
@@ -218,11 +216,6 @@ def _merge_state(t: Traffic, ctx: dict, accept_gap: float) -> tuple[np.ndarray, 
         m.yield_merge, m.yield_stop, np.ascontiguousarray(t._current_pos[t.vehicle_slots[changing], :2]),
         t.v[changing], t.length[changing], np.ascontiguousarray(m.merge_xy), accept_gap, cfg.merge_clearance,
         cfg.merge_speed, cfg.merge_clearance + 3.0)
-
-
-@functools.lru_cache(maxsize=16)
-def _no_ending(n_lanes: int) -> np.ndarray:
-    return np.zeros(n_lanes, dtype=bool)
 
 
 _NO_BOOL = np.zeros(0, dtype=bool)

@@ -22,14 +22,8 @@ import numpy as np
 from mjdrive.compiled import KERNELS as KERNELS
 from mjdrive.compiled import inline as _inline
 from mjdrive.compiled import jit as _jit
-from mjdrive.compiled import numba_cache_dir
 
 INF = np.inf
-
-
-def cache_dir():
-    """Where numba keeps the compiled kernels."""
-    return numba_cache_dir()
 
 
 @_inline
@@ -412,7 +406,7 @@ def idm_accel(a, v, v0, ratio4, interaction, room, tau, max_decel):
 
 
 @_jit
-def place_vehicles(x, y, sin_h, cos_h, d, yaw, ds_speed_v, accel, t_plan, active, hidden_pos, slots,
+def place_vehicles(x, y, sin_h, cos_h, d, yaw, v, accel, t_plan, active, hidden_pos, slots,
                    out_pos, out_yaw, out_speed):
     """Write the vehicles' poses into a plan: the centre line x, y [m] (S, NV) shifted by the lateral offset d
     [m] (S or 1, NV) along the normal (-sin h, cos h) (both from numpy), their yaw [rad] (S, NV) and speed
@@ -430,13 +424,13 @@ def place_vehicles(x, y, sin_h, cos_h, d, yaw, ds_speed_v, accel, t_plan, active
                 out_pos[i, slot, 1] = y[i, n] + cos_h[i, n] * dn
                 out_pos[i, slot, 2] = 0.0
                 out_yaw[i, slot] = yaw[i, n]
-                out_speed[i, slot] = _maximum(ds_speed_v[n] + accel[n] * t, 0.0) * 1.0
+                out_speed[i, slot] = _maximum(v[n] + accel[n] * t, 0.0)
             else:
                 out_pos[i, slot, 0] = hidden_pos[n, 0]
                 out_pos[i, slot, 1] = hidden_pos[n, 1]
                 out_pos[i, slot, 2] = hidden_pos[n, 2]
                 out_yaw[i, slot] = 0.0
-                out_speed[i, slot] = _maximum(ds_speed_v[n] + accel[n] * t, 0.0) * 0.0
+                out_speed[i, slot] = _maximum(v[n] + accel[n] * t, 0.0) * 0.0  # as numpy's x * False
 
 
 @_jit

@@ -75,7 +75,7 @@ def _intended(t: Traffic, right: np.ndarray, left: np.ndarray, near_merge: np.nd
     wish = t.intention[:, LANE_CHANGE]
     lane0 = np.maximum(t.path[:, 0], 0)
     # A lane that ends beside a neighbour (an on-ramp) must be left, whatever the intention.
-    ending = ending_lanes(t)[lane0]
+    ending = t.map.ending[lane0]
     goes_on = (left >= 0) & (t.map.n_successors[np.maximum(left, 0)] > 0)
     wish = np.where(ending, np.where(goes_on, LEFT, RIGHT), wish)
     target = np.where(wish == LEFT, left, np.where(wish == RIGHT, right, -1))
@@ -94,12 +94,6 @@ def _intended(t: Traffic, right: np.ndarray, left: np.ndarray, near_merge: np.nd
         return None
     row = int(np.flatnonzero(ready)[np.argmin(t.lc_signal[ready])])
     return row, (0 if wish[row] == RIGHT else 1)
-
-
-def ending_lanes(t: Traffic) -> np.ndarray:
-    """(L,) lanes without successors beside a same-direction neighbour that goes on (an on-ramp; not the
-    lanes of a road leaving the map, which all end)."""
-    return t.map.ending
 
 
 def _finish_intended(t: Traffic) -> None:
