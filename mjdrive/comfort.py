@@ -196,11 +196,18 @@ class ComfortMeter:
             raise ValueError(f"velocity_xy must have shape (2,) [m/s], got {v.shape}")
         if not (np.isfinite(v).all() and math.isfinite(yaw)):
             raise ValueError(f"velocity_xy and yaw must be finite, got {v.tolist()}, {yaw}")
-        if self._n == len(self._yaw):
+        self.append(float(v[0]), float(v[1]), float(yaw))
+
+    def append(self, vx: float, vy: float, yaw: float) -> None:
+        """`add` for callers that checked their finite scalars (the per-step path): velocity [m/s], yaw [rad]."""
+        n = self._n
+        if n == len(self._yaw):
             self._velocity = np.concatenate([self._velocity, np.empty_like(self._velocity)])
             self._yaw = np.concatenate([self._yaw, np.empty_like(self._yaw)])
-        self._velocity[self._n], self._yaw[self._n] = v, yaw
-        self._n += 1
+        row = self._velocity[n]
+        row[0], row[1] = vx, vy
+        self._yaw[n] = yaw
+        self._n = n + 1
 
     def profile(self, dt: float, window_s: float = WINDOW_S, polyorder: int = POLYORDER) -> AccelerationProfile:
         """`acceleration_profile` of the samples so far, taken every dt [s]."""

@@ -19,7 +19,8 @@ Sections (--sections, all by default):
   throughput  raw `mj_step` of the d210 and the straight-route models, and the env (features) on
               waypoints/straight and roundabout/d210, every timestep interleaved in rounds (best round kept),
               as simulated seconds per wall second and as ratios to the 2 ms figure.
-  profile     (only when named) one env step of roundabout/d210 at the default step, part by part.
+  profile     (only when named) one env step of roundabout/d210 (or --profile-tasks) at the default step, part
+              by part.
 """
 
 from __future__ import annotations
@@ -341,10 +342,10 @@ def throughput_section(dts: list[float], seconds: float, rounds: int) -> list[st
     return lines
 
 
-def profile(dt: float, steps: int) -> dict[str, float]:
-    """Wall time [ms] per env step of roundabout/d210 (features, the ego braking at its yield line) by part:
-    each part's functions are wrapped with a timer on this env only."""
-    env = load("roundabout", "d210", dt)
+def profile(dt: float, steps: int, task_name: str = "roundabout/d210") -> dict[str, float]:
+    """Wall time [ms] per env step of a task with traffic (features, the ego braking where it starts: at its
+    yield line on the roundabout) by part: each part's functions are wrapped with a timer on this env only."""
+    env = load(*task_name.split("/"), dt)
     env.reset()
     task, traffic, physics = env.task, env.task.traffic, env.physics
     spent: dict[str, float] = {}
@@ -364,7 +365,7 @@ def profile(dt: float, steps: int) -> dict[str, float]:
     timed(task, "before_step", "task: action to controls")
     timed(task, "after_step", "task: ego state, sensors, reward")
     timed(task, "get_observation", "task: observation")
-    timed(traffic, "_decide", "traffic: decisions (every 0.6 s)")
+    timed(traffic, "_decide", f"traffic: decisions (every {traffic.config.decision_period:g} s)")
     timed(traffic, "advance", "traffic: advance (all)")
     timed(task.collision_sensor, "sample", "contact samples (every 0.02 s)")
     timed(physics, "advance", "physics.advance (all)")
@@ -387,8 +388,9 @@ def profile(dt: float, steps: int) -> dict[str, float]:
     raw = time.perf_counter() - start
     ms = {key: 1e3 * value / steps for key, value in spent.items()}
     out = {"env step": 1e3 * total / steps, "raw mj_step of a control step": 1e3 * raw / steps}
-    out["traffic: motion and mocap writes"] = ms["traffic: advance (all)"] - ms["traffic: decisions (every 0.6 s)"]
-    out["traffic: decisions (every 0.6 s)"] = ms["traffic: decisions (every 0.6 s)"]
+    decisions = f"traffic: decisions (every {traffic.config.decision_period:g} s)"
+    out["traffic: motion and mocap writes"] = ms["traffic: advance (all)"] - ms[decisions]
+    out[decisions] = ms[decisions]
     out["contact samples (every 0.02 s)"] = ms["contact samples (every 0.02 s)"]
     out["physics chunks beyond raw mj_step (callbacks, cache)"] = (
         ms["physics.advance (all)"] - out["raw mj_step of a control step"] - ms["traffic: advance (all)"]
@@ -403,11 +405,11 @@ def profile(dt: float, steps: int) -> dict[str, float]:
     return out
 
 
-def profile_section(dt: float, steps: int) -> list[str]:
-    r = profile(dt, steps)
-    log(f"profile dt={dt * 1e3:g} ms: {r['env step']:.3f} ms per step")
-    lines = [f"## One env step of roundabout/d210 at {dt * 1e3:g} ms, part by part", "",
-             f"{steps} steps (features, the ego braking at its yield line); each part timed by a wrapper on this env "
+def profile_section(dt: float, steps: int, task_name: str = "roundabout/d210") -> list[str]:
+    r = profile(dt, steps, task_name)
+    log(f"profile {task_name} dt={dt * 1e3:g} ms: {r['env step']:.3f} ms per step")
+    lines = [f"## One env step of {task_name} at {dt * 1e3:g} ms, part by part", "",
+             f"{steps} steps (features, the ego braking where it starts); each part timed by a wrapper on this env "
              "(a wrapper adds ~1 us per call).", "", "| part | ms per env step | share of the env step |",
              "| --- | ---: | ---: |"]
     for key, value in r.items():
@@ -422,6 +424,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sections", nargs="+", default=["vehicle", "collision", "stability", "throughput"],
                         choices=["vehicle", "collision", "stability", "throughput", "profile"])
     parser.add_argument("--profile-steps", type=int, default=3000)
+    parser.add_argument("--profile-tasks", nargs="+", default=["roundabout/d210"],
+                        help="profile: tasks with traffic, domain/task")
     parser.add_argument("--stability-steps", type=int, default=100_000)
     parser.add_argument("--seconds", type=float, default=10.0, help="throughput: wall seconds per case")
     parser.add_argument("--rounds", type=int, default=5)
@@ -442,7 +446,8 @@ def main(argv: list[str] | None = None) -> int:
         elif section == "throughput":
             lines += throughput_section(task_dts, args.seconds, args.rounds) + [""]
         elif section == "profile":
-            lines += profile_section(world.PHYSICS_TIMESTEP, args.profile_steps) + [""]
+            for task_name in args.profile_tasks:
+                lines += profile_section(world.PHYSICS_TIMESTEP, args.profile_steps, task_name) + [""]
     lines.append(f"Wall time {time.perf_counter() - start:.0f} s.")
     text = "\n".join(lines) + "\n"
     if args.out:

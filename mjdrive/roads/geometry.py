@@ -18,7 +18,10 @@ STEP = 0.5  # [m] largest spacing of sampled polyline points
 
 
 def wrap_angle(angle: ArrayLike):
-    """Wrap an angle [rad] (scalar or array) to [-pi, pi)."""
+    """Wrap an angle [rad] (scalar or array) to [-pi, pi); a Python float gives a float (the same number: Python's
+    float % is numpy's floored remainder)."""
+    if type(angle) is float:  # the per-step path: no array round trip
+        return (angle + math.pi) % (2 * math.pi) - math.pi
     return (np.asarray(angle, dtype=float) + np.pi) % (2 * np.pi) - np.pi
 
 

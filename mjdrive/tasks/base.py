@@ -129,24 +129,32 @@ def step_in_chunks(physics: Sequence[Physics], nstep: int, step_all: Callable[[i
     steps them all by n): in one call without a `substep_callback`, else in chunks of `substep_interval` steps
     with each copy's callback after each chunk (given the chunk's duration [s]). `Physics.advance` steps one
     copy this way, the batched env many at once."""
-    callbacks = [p.substep_callback for p in physics]
-    if not any(callbacks):
-        step_all(nstep)
-        return
-    chunk = max(1, int(physics[0].substep_interval))
-    dt = float(physics[0].raw_model.opt.timestep)  # [s]
+    first = physics[0]
+    if len(physics) == 1:  # the single env's per-step path: no lists
+        callback = first.substep_callback
+        if callback is None:
+            step_all(nstep)
+            return
+        pairs = ((first, callback),)
+    else:
+        pairs = tuple((p, p.substep_callback) for p in physics if p.substep_callback is not None)
+        if not pairs:
+            step_all(nstep)
+            return
+    chunk = max(1, int(first.substep_interval))
+    dt = float(first.raw_model.opt.timestep)  # [s]
     done = 0
     while done < nstep:
         n = min(chunk, nstep - done)
         step_all(n)
-        for p, callback in zip(physics, callbacks, strict=True):
-            if callback is not None:
-                callback(p, n * dt)
+        for p, callback in pairs:
+            callback(p, n * dt)
         done += n
 
 
 class Physics(dm_mujoco.Physics):
-    """dm_control Physics; `raw_model`/`raw_data` are the mujoco structs used on the hot path.
+    """dm_control Physics; `raw_model`/`raw_data` are the mujoco structs used on the hot path (attributes, set
+    whenever dm_control (re)loads the data).
 
     A task may register `substep_callback(physics, dt)`: `step(n)` then runs the physics in chunks of
     `substep_interval` steps and calls it after each chunk with the chunk's duration dt [s] (e.g. to move
@@ -155,6 +163,12 @@ class Physics(dm_mujoco.Physics):
 
     substep_callback: Callable[[Physics, float], None] | None = None
     substep_interval: int = 10  # physics steps per callback
+    raw_model: mujoco.MjModel
+    raw_data: mujoco.MjData
+
+    def _reload_from_data(self, data) -> None:
+        self.raw_model, self.raw_data = data.model.ptr, data.ptr  # before dm_control's own set-up uses them
+        super()._reload_from_data(data)
 
     def step(self, nstep: int = 1) -> None:
         with self.check_invalid_state():
@@ -165,14 +179,6 @@ class Physics(dm_mujoco.Physics):
         DrivingEnvironment.after_physics checks the warnings itself."""
         model, data = self.raw_model, self.raw_data
         step_in_chunks((self,), nstep, lambda n: mujoco.mj_step(model, data, n))
-
-    @property
-    def raw_model(self) -> mujoco.MjModel:
-        return self.model.ptr
-
-    @property
-    def raw_data(self) -> mujoco.MjData:
-        return self.data.ptr
 
 
 class DrivingTask(control.Task):
@@ -230,9 +236,14 @@ class DrivingTask(control.Task):
 
     def comfort_sample(self, data: mujoco.MjData) -> tuple[np.ndarray, float]:
         """(planar chassis velocity (2,) [m/s] in the world frame, yaw [rad]): a `ComfortMeter` sample."""
+        vx, vy, yaw = self._planar_velocity(data)
+        return np.array([vx, vy]), yaw
+
+    def _planar_velocity(self, data: mujoco.MjData) -> tuple[float, float, float]:
+        """(vx, vy) [m/s] of the chassis in the world frame and its yaw [rad]."""
         _, _, yaw, forward, left, _ = self.vehicle.planar_state(data)
         c, s = math.cos(yaw), math.sin(yaw)
-        return np.array([c * forward - s * left, s * forward + c * left]), yaw
+        return c * forward - s * left, s * forward + c * left, yaw
 
     def reset_comfort(self, physics: Physics) -> None:
         """Start the episode's comfort samples with the state after reset."""
@@ -242,9 +253,9 @@ class DrivingTask(control.Task):
     def sample_comfort(self, data: mujoco.MjData, meter: ComfortMeter | None = None) -> None:
         """Add the state of `data` after a control step to `meter` (default: the task's `comfort`; the
         recorder keeps its own); a non-finite state is left out."""
-        velocity, yaw = self.comfort_sample(data)
-        if math.isfinite(yaw) and np.isfinite(velocity).all():
-            (self.comfort if meter is None else meter).add(velocity, yaw)
+        vx, vy, yaw = self._planar_velocity(data)
+        if math.isfinite(yaw) and math.isfinite(vx) and math.isfinite(vy):
+            (self.comfort if meter is None else meter).append(vx, vy, yaw)
 
     def comfort_metrics(self) -> dict[str, float]:
         """The episode's comfort metrics so far (`ComfortMetrics.as_dict()`; NaN when too short to filter,
@@ -323,7 +334,7 @@ class DrivingEnvironment(control.Environment):
             raise ValueError("DrivingEnvironment steps with mj_step only (legacy_step=False)")
         super().__init__(physics, task, **kwargs)
         self._last_observation = None
-        self._warnings_before = np.zeros_like(physics.raw_data.warning.number)
+        self._warnings_before = physics.raw_data.warning.number.tobytes()  # the counts before this step's physics
         task.control_dt = self.control_timestep()  # [s] the comfort samples' period
 
     @property
@@ -367,7 +378,7 @@ class DrivingEnvironment(control.Environment):
         """First half of a control step: the task applies `action`; the physics' warning counts are kept to
         tell a blow-up in `after_physics`."""
         self._task.before_step(action, self._physics)
-        np.copyto(self._warnings_before, self._physics.raw_data.warning.number)
+        self._warnings_before = self._physics.raw_data.warning.number.tobytes()
 
     def after_physics(self) -> dm_env.TimeStep:
         """Second half of a control step, once the physics advanced `n_sub_steps`: the task's `after_step`,
@@ -375,8 +386,9 @@ class DrivingEnvironment(control.Environment):
         MuJoCo warning or a non-finite qpos ends the episode instead (`info["physics_error"]`, discount 0,
         the last observation again)."""
         data = self._physics.raw_data
-        new = data.warning.number > self._warnings_before
-        if new.any() or not np.all(np.isfinite(data.qpos)):
+        warnings = data.warning.number  # a count that changed is a new warning (MuJoCo's auto-reset restarts them)
+        if warnings.tobytes() != self._warnings_before or not np.isfinite(data.qpos).all():
+            new = warnings != np.frombuffer(self._warnings_before, dtype=warnings.dtype)
             names = [name for name, flag in zip(mujoco.mjtWarning.__members__, new, strict=False) if flag]
             self._reset_next_step = True
             self.task.info["physics_error"] = f"physics state is invalid ({', '.join(names) or 'non-finite qpos'})"

@@ -59,10 +59,12 @@ from dm_control.utils import containers
 from dm_env import specs
 
 from mjdrive import roads, world
+from mjdrive.compiled import KERNELS
 from mjdrive.config import ConfigError, param
 from mjdrive.roads import Lane, RoadMap
 from mjdrive.roads.geometry import footprint, wrap_angle
 from mjdrive.roads.route_frame import RouteFrame
+from mjdrive.tasks import kernels
 from mjdrive.tasks.base import (
     DrivingConfig,
     DrivingEnvironment,
@@ -367,13 +369,19 @@ class RoundaboutTask(DrivingTask):
         present = np.flatnonzero(traffic.present)
         if not len(present) or not self.neighbours:
             return out
+        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        vx, vy = self.vehicle.velocity_body(physics.raw_data)
+        if KERNELS:  # the same rows in one compiled pass
+            dyaw = traffic.yaws() - self.yaw
+            kernels.road_user_rows(out, traffic.positions(), present, float(self.xy[0]), float(self.xy[1]), float(c),
+                                   float(s), vx, vy, traffic.speeds(), np.cos(dyaw), np.sin(dyaw), self._lengths,
+                                   self._kind_onehot)
+            return out
         rel = traffic.positions()[present] - self.xy
         dist2 = rel[:, 0] ** 2 + rel[:, 1] ** 2
         k = min(self.neighbours, len(present))
         order = np.argsort(dist2, kind="stable")[:k]
         idx = present[order]
-        c, s = np.cos(self.yaw), np.sin(self.yaw)
-        vx, vy = self.vehicle.velocity_body(physics.raw_data)
         speed, yaw = traffic.speeds()[idx], traffic.yaws()[idx]
         dyaw = yaw - self.yaw
         r = rel[order]

@@ -34,12 +34,14 @@ from dm_control.utils import containers
 from dm_env import specs
 
 from mjdrive import world
+from mjdrive.compiled import KERNELS
 from mjdrive.config import ConfigError, param
 from mjdrive.roads import Lane
 from mjdrive.roads.geometry import wrap_angle
 from mjdrive.roads.ports import ComposedMap
 from mjdrive.roads.route_frame import RouteFrame
 from mjdrive.roads.urban import FOLLOW, UrbanRoute, concatenated, route_offsets, route_through
+from mjdrive.tasks import kernels
 from mjdrive.tasks.base import (
     DrivingConfig,
     DrivingEnvironment,
@@ -57,6 +59,7 @@ SUITE = containers.TaggedTasks()
 
 CONTROL_TIMESTEP = 0.1  # [s] 10 Hz
 SCENARIOS = (FOLLOW, "roundabout", "lane_change", "crossroad", "merge")  # the scenario one-hot, in order
+_SCENARIO_INDEX = {name: i for i, name in enumerate(SCENARIOS)}
 PIECES = {"roundabout": ("roundabout",), "lane_change": ("road",), "crossroad": ("crossroad",),
           "merge": ("merge",), "concatenated": ("roundabout", "road", "crossroad", "merge")}
 SPEED_SCALE = 15.0  # [m/s] speeds normalised by this (§5.3's top speed)
@@ -66,6 +69,7 @@ ARRIVAL_REWARD = 1.0
 COLLISION_REWARD = -2.0
 ARRIVAL_MARGIN = 5.0  # [m] before the route's end counts as arrived
 ADVERSARY_COLUMNS = 4  # present, distance, speed, intention
+_NO_INTENTION = np.zeros(0, np.int64)  # the adversary kernel's intentions outside the scenarios that have them
 
 
 @dataclass(frozen=True)
@@ -162,12 +166,13 @@ class UrbanTask(DrivingTask):
         self.xy, self.yaw = np.array([x, y]), yaw
         s, d = self.route_frame(self.xy[None])
         self.route_s, self.lane_offset = float(s[0]), float(d[0])  # [m]
+        self.scenario = self.urban.tactical.scenario_at(self.route_s)  # the active scenario
         tangent = self.route_frame.tangent[self.route_frame.segment]
         self.heading_error = float(wrap_angle(yaw - math.atan2(tangent[1], tangent[0])))  # [rad]
 
     def active_scenario(self) -> str:
         """The tactical trajectory's scenario at the ego's place on the route."""
-        return self.urban.tactical.scenario_at(self.route_s)
+        return self.scenario
 
     def road_users(self) -> RoadUsers:
         """The road users (base class) with their intentions (N, 4) by scenario, for logs and viewers."""
@@ -219,9 +224,10 @@ class UrbanTask(DrivingTask):
         return spec
 
     def _ego_vector(self) -> np.ndarray:
-        values = [self.speed / SPEED_SCALE, (self.heading_error + math.pi) / (2 * math.pi),
-                  (self.lane_offset / self.config.off_route + 1.0) / 2.0, self.route_s / self.route_end]
-        return np.clip(np.array(values, np.float32), 0.0, 1.0)
+        values = (self.speed / SPEED_SCALE, (self.heading_error + math.pi) / (2 * math.pi),
+                  (self.lane_offset / self.config.off_route + 1.0) / 2.0, self.route_s / self.route_end)
+        # clipped before the float32 cast, the same numbers as np.clip after it (0 and 1 are exact; NaN stays)
+        return np.array([min(max(v, 0.0), 1.0) for v in values], np.float32)
 
     def relevant_point(self) -> np.ndarray:
         """Where adversaries' distances are measured (§5.1.2): the next conflict point on the route within
@@ -242,11 +248,15 @@ class UrbanTask(DrivingTask):
         point = self.relevant_point()
         rel = traffic.positions()[present] - point
         dist = np.hypot(rel[:, 0], rel[:, 1])
+        scenario = self.active_scenario()
+        column = INTENTION_SCENARIOS.index(scenario) if scenario in INTENTION_SCENARIOS else None
+        if KERNELS:  # the same rows in one compiled pass
+            intention = _NO_INTENTION if column is None else traffic.intentions()[:, column]
+            kernels.adversary_rows(out, dist, present, traffic.speeds(), intention, DISTANCE_SCALE, SPEED_SCALE)
+            return out
         k = min(n, len(present))
         order = np.argsort(dist, kind="stable")[:k]
         idx = present[order]
-        scenario = self.active_scenario()
-        column = INTENTION_SCENARIOS.index(scenario) if scenario in INTENTION_SCENARIOS else None
         out[:k, 0] = 1.0
         out[:k, 1] = np.minimum(dist[order] / DISTANCE_SCALE, 1.0)
         out[:k, 2] = np.minimum(traffic.speeds()[idx] / SPEED_SCALE, 1.0)
@@ -261,7 +271,7 @@ class UrbanTask(DrivingTask):
             obs = collections.OrderedDict(image=self.render_camera(physics, "ego/front", size, size).copy(), ego=ego)
         else:
             scenario = np.zeros(len(SCENARIOS), np.float32)
-            scenario[SCENARIOS.index(self.active_scenario())] = 1.0
+            scenario[_SCENARIO_INDEX[self.scenario]] = 1.0
             obs = collections.OrderedDict(ego=ego, scenario=scenario, adversaries=self.adversary_matrix())
         obs.update(self.sensor_observation(physics))
         return obs

@@ -1,0 +1,70 @@
+"""Compiled parts of the tasks' observations (numba, `mjdrive.compiled`): the nearest road users' rows.
+
+Each kernel repeats the numpy code of its task operation for operation (the tasks keep that code, which runs
+without numba; tests/test_task_kernels.py holds the two to the same bits). Sines, cosines and hypot stay in
+numpy, computed by the caller: numpy's vectorised versions may round differently from libm on some CPUs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mjdrive.compiled import jit
+
+
+@jit
+def adversary_rows(out: np.ndarray, dist: np.ndarray, present: np.ndarray, speeds: np.ndarray,
+                   intention: np.ndarray, distance_scale: float, speed_scale: float) -> None:
+    """Fill `out` (n, 4) float32 with the urban task's adversary rows of the min(n, P) present road users
+    nearest the relevant point: 1, distance / distance_scale, speed / speed_scale (both capped at 1), and
+    max(intention, 0) / 2 (0 where `intention` is empty: no intention in this scenario).
+
+    dist (P,) [m] of the present users (slot indices `present` (P,)); speeds (N,) [m/s] and intention (N,) of
+    every slot. The order is numpy's stable argsort of dist."""
+    k = min(out.shape[0], dist.shape[0])
+    order = np.argsort(dist, kind="mergesort")  # stable, as numpy's "stable"
+    with_intention = intention.shape[0] > 0
+    for r in range(k):
+        j = order[r]
+        i = present[j]
+        d = dist[j] / distance_scale
+        v = speeds[i] / speed_scale
+        out[r, 0] = 1.0
+        out[r, 1] = 1.0 if d > 1.0 else d  # np.minimum(., 1.0), NaN kept
+        out[r, 2] = 1.0 if v > 1.0 else v
+        if with_intention:
+            out[r, 3] = max(intention[i], 0) / 2.0
+
+
+@jit
+def road_user_rows(out: np.ndarray, positions: np.ndarray, present: np.ndarray, x: float, y: float, c: float,
+                   s: float, vx: float, vy: float, speeds: np.ndarray, cos_dyaw: np.ndarray, sin_dyaw: np.ndarray,
+                   lengths: np.ndarray, kind_onehot: np.ndarray) -> None:
+    """Fill `out` (K, 9 + kinds) float32 with the roundabout task's rows of the min(K, P) present road users
+    nearest the ego at (x, y) [m] (numpy's stable order of squared distances): 1, position in the ego frame
+    (c, s: cos and sin of the ego's yaw) [m], velocity relative to the ego's (vx, vy) [m/s] in the ego frame,
+    cos and sin of the heading difference, length and width [m], kind one-hot.
+
+    positions (N, 2) [m], speeds (N,) [m/s], cos_dyaw and sin_dyaw (N,) of (yaw - ego yaw), lengths (N, 2) [m]
+    and kind_onehot (N, kinds) of every slot; present (P,) the slots in the world."""
+    p = present.shape[0]
+    dist2 = np.empty(p)
+    for j in range(p):
+        i = present[j]
+        rx, ry = positions[i, 0] - x, positions[i, 1] - y
+        dist2[j] = rx * rx + ry * ry
+    order = np.argsort(dist2, kind="mergesort")  # stable, as numpy's "stable"
+    for r in range(min(out.shape[0], p)):
+        i = present[order[r]]
+        rx, ry = positions[i, 0] - x, positions[i, 1] - y
+        out[r, 0] = 1.0
+        out[r, 1] = c * rx + s * ry
+        out[r, 2] = -s * rx + c * ry
+        out[r, 3] = speeds[i] * cos_dyaw[i] - vx
+        out[r, 4] = speeds[i] * sin_dyaw[i] - vy
+        out[r, 5] = cos_dyaw[i]
+        out[r, 6] = sin_dyaw[i]
+        out[r, 7] = lengths[i, 0]
+        out[r, 8] = lengths[i, 1]
+        for m in range(kind_onehot.shape[1]):
+            out[r, 9 + m] = kind_onehot[i, m]
