@@ -14,16 +14,16 @@ from mjdrive.compiled import jit
 
 @jit
 def adversary_rows(out: np.ndarray, dist: np.ndarray, present: np.ndarray, speeds: np.ndarray,
-                   intention: np.ndarray, distance_scale: float, speed_scale: float) -> None:
+                   intentions: np.ndarray, column: int, distance_scale: float, speed_scale: float) -> None:
     """Fill `out` (n, 4) float32 with the urban task's adversary rows of the min(n, P) present road users
     nearest the relevant point: 1, distance / distance_scale, speed / speed_scale (both capped at 1), and
-    max(intention, 0) / 2 (0 where `intention` is empty: no intention in this scenario).
+    max(intention, 0) / 2 in the scenario's `column` of `intentions` (0 where column < 0: none in this scenario).
 
-    dist (P,) [m] of the present users (slot indices `present` (P,)); speeds (N,) [m/s] and intention (N,) of
+    dist (P,) [m] of the present users (slot indices `present` (P,)); speeds (N,) [m/s] and intentions (N, 4) of
     every slot. The order is numpy's stable argsort of dist."""
     k = min(out.shape[0], dist.shape[0])
     order = np.argsort(dist, kind="mergesort")  # stable, as numpy's "stable"
-    with_intention = intention.shape[0] > 0
+    with_intention = column >= 0
     for r in range(k):
         j = order[r]
         i = present[j]
@@ -33,7 +33,7 @@ def adversary_rows(out: np.ndarray, dist: np.ndarray, present: np.ndarray, speed
         out[r, 1] = 1.0 if d > 1.0 else d  # np.minimum(., 1.0), NaN kept
         out[r, 2] = 1.0 if v > 1.0 else v
         if with_intention:
-            out[r, 3] = max(intention[i], 0) / 2.0
+            out[r, 3] = max(intentions[i, column], 0) / 2.0
 
 
 @jit

@@ -262,10 +262,14 @@ class RoundaboutTask(DrivingTask):
         self._update_ego(physics)
         info = self.info
         collision = self.collision_sensor.collided(physics.raw_data)
-        in_route = np.abs(self.corner_offsets) <= self._route_width / 2  # on the route's lanes: on the road
-        on_road = in_route if in_route.all() else self.road_map.on_road(self.corners)
-        off_share = 1.0 - np.count_nonzero(on_road) / 4.0
-        other_share = np.count_nonzero(on_road & ~in_route) / 4.0
+        half_width = self._route_width / 2
+        if all(abs(d) <= half_width for d in self.corner_offsets.tolist()):  # on the route's lanes: on the road
+            off_share = other_share = 0.0
+        else:
+            in_route = np.abs(self.corner_offsets) <= half_width
+            on_road = self.road_map.on_road(self.corners)
+            off_share = 1.0 - np.count_nonzero(on_road) / 4.0
+            other_share = np.count_nonzero(on_road & ~in_route) / 4.0
         remaining = self._remaining()
         arrived = self.route_s >= self.destination_s - 0.5 and abs(self.lane_offset) <= self._route_width / 2
         info["collision"] |= collision

@@ -69,7 +69,6 @@ ARRIVAL_REWARD = 1.0
 COLLISION_REWARD = -2.0
 ARRIVAL_MARGIN = 5.0  # [m] before the route's end counts as arrived
 ADVERSARY_COLUMNS = 4  # present, distance, speed, intention
-_NO_INTENTION = np.zeros(0, np.int64)  # the adversary kernel's intentions outside the scenarios that have them
 
 
 @dataclass(frozen=True)
@@ -193,7 +192,7 @@ class UrbanTask(DrivingTask):
         info["scenario"] = self.active_scenario()
         info["steps"] += 1
         info["elapsed_time"] = info["steps"] * CONTROL_TIMESTEP
-        info["distance"] += float(np.hypot(*(self.xy - previous_xy)))
+        info["distance"] += float(np.hypot(self.xy[0] - previous_xy[0], self.xy[1] - previous_xy[1]))
         info["average_speed"] = info["distance"] / info["elapsed_time"]
         terms = {"speed": SPEED_REWARD * self.speed, "arrival": ARRIVAL_REWARD * info["success"],
                  "collision": COLLISION_REWARD * collision}
@@ -251,8 +250,8 @@ class UrbanTask(DrivingTask):
         scenario = self.active_scenario()
         column = INTENTION_SCENARIOS.index(scenario) if scenario in INTENTION_SCENARIOS else None
         if KERNELS:  # the same rows in one compiled pass
-            intention = _NO_INTENTION if column is None else traffic.intentions()[:, column]
-            kernels.adversary_rows(out, dist, present, traffic.speeds(), intention, DISTANCE_SCALE, SPEED_SCALE)
+            kernels.adversary_rows(out, dist, present, traffic.speeds(), traffic.intentions(),
+                                   -1 if column is None else column, DISTANCE_SCALE, SPEED_SCALE)
             return out
         k = min(n, len(present))
         order = np.argsort(dist, kind="stable")[:k]

@@ -1,0 +1,43 @@
+"""`python -m mjdrive.envs.compile_kernels`: compile every numba kernel (traffic decisions, the route frame, the
+tasks' observations) into the on-disk cache once, by stepping a roundabout env (with pedestrians) and the
+concatenated urban route through a few traffic decisions (`make install` runs it), so that no env or worker
+pays the compilation later. Prints where the cache is and how long it took."""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+
+from mjdrive import suite
+from mjdrive.compiled import KERNELS, numba_cache_dir
+
+WARM_STEPS = 12  # control steps per env: over two traffic decisions on each
+
+
+def compile_kernels() -> float:
+    """Step the envs whose code calls every kernel; the wall time [s] it took (compiling, or loading the cache)."""
+    start = time.perf_counter()
+    for domain, task, kwargs in (("roundabout", "d120", {"road_users": {"car": 6, "motorcycle": 1, "pedestrian": 2}}),
+                                 ("urban", "concatenated", {})):
+        env = suite.load(domain, task, {"random": 0, **kwargs})
+        env.reset()
+        for _ in range(WARM_STEPS):
+            env.step(np.array([0.3, 0.0, 0.0]))
+        env.close()
+    return time.perf_counter() - start
+
+
+def main() -> int:
+    if not KERNELS:
+        print("kernels: numba is not installed (pip install 'mjdrive[fast]'), or MJDRIVE_NO_KERNELS is set: the "
+              "numpy code runs")
+        return 0
+    print(f"kernels: compiling into {numba_cache_dir()} ...", flush=True)
+    print(f"kernels: ready in {compile_kernels():.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
