@@ -6,17 +6,23 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 
 import mjdrive.traffic.following as following
 import mjdrive.traffic.lane_changes as lane_changes
+import mjdrive.traffic.lanes as lanes
 import mjdrive.traffic.merges as merges
 import mjdrive.traffic.model as model
-from mjdrive import suite
+import mjdrive.traffic.pedestrians as pedestrians
+import mjdrive.traffic.spawning as spawning
+from mjdrive import roads, suite
 from mjdrive.envs.gym_env import make_env
 from mjdrive.policies import make_policy
+from mjdrive.traffic import kernels
 
 
 def _checked_summaries(monkeypatch) -> list[int]:
@@ -56,15 +62,15 @@ def _assert_same(expected, got, where: str = "") -> None:
 
 
 def _snapshot(traffic, state: tuple[str, ...]) -> dict:
-    """Copies of the traffic attributes `state` ("rng": its generator's state)."""
-    return {name: copy.deepcopy(traffic.rng.bit_generator.state if name == "rng" else getattr(traffic, name))
-            for name in state}
+    """Copies of the traffic attributes `state` (random generators: their states)."""
+    return {name: copy.deepcopy(getattr(traffic, name).bit_generator.state if name.endswith("rng")
+                                else getattr(traffic, name)) for name in state}
 
 
 def _restore(traffic, saved: dict) -> None:
     for name, value in saved.items():
-        if name == "rng":
-            traffic.rng.bit_generator.state = value
+        if name.endswith("rng"):
+            getattr(traffic, name).bit_generator.state = value
         else:
             setattr(traffic, name, copy.deepcopy(value))
 
@@ -77,13 +83,14 @@ def _both_ways(monkeypatch, owner, name: str, flags, state: tuple[str, ...] = ()
     original = getattr(owner, name)
 
     def both(traffic, *args):
-        saved = _snapshot(traffic, state)
+        saved, before = _snapshot(traffic, state), flags.KERNELS
         monkeypatch.setattr(flags, "KERNELS", False)
         expected = original(traffic, *args)
         expected_state = _snapshot(traffic, state)
         _restore(traffic, saved)
         monkeypatch.setattr(flags, "KERNELS", True)
         got = original(traffic, *args)
+        monkeypatch.setattr(flags, "KERNELS", before)  # as the caller runs (a wrapped function may call another)
         _assert_same(expected, got, name)
         _assert_same(expected_state, _snapshot(traffic, state), f"{name} state")
         calls.append(got)
@@ -114,8 +121,32 @@ def _checked_contexts(monkeypatch) -> list:
 
 
 def _checked_plans(monkeypatch) -> list:
-    """Every plan of poses."""
+    """Every plan of poses (pedestrians' included)."""
     return _both_ways(monkeypatch, model.Traffic, "_make_plan", model)
+
+
+VEHICLE_STATE = ("active", "path", "s", "v", "v0", "d_pref", "lc_shift", "lc_dist", "lc_changing", "lc_signal",
+                 "accel", "intention", "ring_passed", "generation", "stats", "rng", "intent_rng")
+
+
+def _checked_bookkeeping(monkeypatch) -> dict[str, list]:
+    """Every decision's bookkeeping (`state_kernels`): lanes passed, spawns, lane changes, the corridor's
+    obstacles, occupied crossings, curve speeds, vehicle poses and path starts, with the state they leave."""
+    return {
+        "advance": _both_ways(monkeypatch, model.Traffic, "_advance_lanes", model, VEHICLE_STATE),
+        "spawn": _both_ways(monkeypatch, model, "spawn", spawning, VEHICLE_STATE),
+        "lane_changes": _both_ways(monkeypatch, model, "lane_changes", lane_changes, VEHICLE_STATE),
+        "options": _both_ways(monkeypatch, lane_changes, "_options", lane_changes),
+        "finish": _both_ways(monkeypatch, lane_changes, "_finish_intended", lane_changes,
+                             ("intention", "lc_signal", "lc_changing")),
+        "candidates": _both_ways(monkeypatch, lane_changes, "_candidates", lane_changes),
+        "obstacles": _both_ways(monkeypatch, following, "obstacles", following, ("_obstacle_cache",)),
+        "crossings": _both_ways(monkeypatch, following, "occupied_crossings", pedestrians),
+        "curve_speed": _both_ways(monkeypatch, lanes.TrafficMap, "curve_speed", lanes),
+        "poses": _both_ways(monkeypatch, model.Traffic, "_vehicle_poses", model),
+        "starts": _both_ways(monkeypatch, model.Traffic, "_path_starts", model),
+        "centre": _both_ways(monkeypatch, model.Traffic, "_centre_poses", model),
+    }
 
 
 @pytest.mark.parametrize("domain, task, policy", [
@@ -128,6 +159,7 @@ def test_kernels_give_the_numpy_numbers_at_every_decision(monkeypatch, domain, t
     summaries, plans = _checked_summaries(monkeypatch), _checked_plans(monkeypatch)
     accelerations, changes = _checked_accelerations(monkeypatch), _checked_lane_changes(monkeypatch)
     successors, contexts = _checked_successors(monkeypatch), _checked_contexts(monkeypatch)
+    bookkeeping = _checked_bookkeeping(monkeypatch)
     env = make_env(domain, task, random=3)
     act = (lambda obs: np.array([0.0, 0.0, 1.0])) if policy == "brake" else make_policy(policy, env, 3)
     observation, _ = env.reset(seed=3)
@@ -137,6 +169,15 @@ def test_kernels_give_the_numpy_numbers_at_every_decision(monkeypatch, domain, t
             observation, _ = env.reset()
     assert len(plans) >= 40 and len(accelerations) >= 40 and len(contexts) >= 40
     assert sum(n > 1 for n in summaries) >= 40  # the traffic's own decisions
+    for name in ("advance", "spawn", "lane_changes", "options", "obstacles", "curve_speed"):
+        assert len(bookkeeping[name]) >= 40, name
+    if domain == "urban":
+        assert len(bookkeeping["finish"]) >= 40
+    if domain == "roundabout":  # random lane changes
+        assert len(bookkeeping["candidates"]) >= 40 and any(len(rows) for rows in bookkeeping["candidates"])
+    assert any(bookkeeping["spawn"]) and len(bookkeeping["poses"]) >= 1 and len(bookkeeping["starts"]) >= 1
+    if domain == "roundabout":
+        assert len(bookkeeping["crossings"]) >= 40 and any(c.any() for c in bookkeeping["crossings"])
     if domain == "urban":
         assert len(changes) >= 40 and len(successors) >= 5  # the signals at every decision, paths that go on
     if task == "lane_change":
@@ -195,7 +236,7 @@ def _random_states(name: str, trials: int, seed: int = 0):
                 t.s[row] = np.clip(front - t.length[row] / 2, 0.0, lane_length[row])
         t.v = rng.choice([0.0, 0.5, 3.0, 9.0, 14.0], t.nv) * rng.uniform(0.8, 1.2, t.nv)
         t.stopped_time = rng.choice([0.0, 2.0, 3.0, 25.0], t.nv)
-        t.lc_dist = rng.choice([0.0, 7.0, 1e9], t.nv)
+        t.lc_dist = rng.choice([0.0, 7.0, 12.0, 15.0, 1e9], t.nv)  # [m] (lane_change_length: 15 m)
         t.lc_signal = rng.choice([-1.0, t.time - 2.0, t.time], t.nv)
         t.intention = rng.integers(0, 3, t.intention.shape)
         if rng.random() < 0.5:  # sparse traffic: gaps open and close at merges and crossings
@@ -242,3 +283,64 @@ def test_roundabout_merge_state_agrees_in_sparse_traffic():
         assert np.array_equal(committed, expected)
         seen |= {("conflict", bool(c)) for c in conflict} | {("committed", bool(c)) for c in committed}
     assert seen == {("conflict", True), ("conflict", False), ("committed", True), ("committed", False)}
+
+
+def test_bookkeeping_kernels_agree_on_random_states(monkeypatch):
+    """Lanes passed (some vehicles far past their lane's end), spawns into sparse traffic, lane changes, obstacles,
+    crossings, curve speeds (also off the lane's ends) and poses, both ways from random states."""
+    checked = _checked_bookkeeping(monkeypatch)
+    rng = np.random.default_rng(5)
+    for name in ("urban/concatenated", "urban/lane_change", "roundabout/d210"):
+        for t in _random_states(name, 150, seed=1):
+            saved = _snapshot(t, (*VEHICLE_STATE, "_current_pos", "_current_yaw", "_current_speed"))
+            t._obstacle_cache = None
+            following.obstacles(t)
+            if t.np_:
+                following.occupied_crossings(t)
+            lane0 = np.maximum(t.path[:, 0], 0)
+            t.map.curve_speed(lane0, t.s * rng.uniform(-0.2, 1.5, t.nv))
+            t._vehicle_poses(np.zeros((1, t.nv)))
+            t._path_starts()
+            # along each vehicle's lane from vertex to vertex (the segment search's ties), and on
+            m = t.map
+            vertex = np.minimum(m.first[lane0][None] + np.arange(12)[:, None], m.last_segment[lane0][None] + 1)
+            ds = np.maximum(m.g[vertex] - m.base[lane0][None] - t.s[None], 0.0)
+            t._centre_poses(np.vstack([ds, ds[-1] + np.arange(1, 20)[:, None] * 4.0]))
+            for _ in range(3):  # every lane, near its end (merges, exits) or past it
+                t.path[:, 0] = rng.integers(0, t.map.n_lanes, t.nv)
+                t.s = t.map.length[t.path[:, 0]] - rng.uniform(-1.0, 20.0, t.nv)
+                lane_changes._options(t)
+                t.map.curve_speed(t.path[:, 0], t.s)
+            _restore(t, saved)
+            t.s = t.s + rng.choice([0.0, 0.0, 30.0, 80.0], t.nv)  # past the lane's end, or the next one's
+            t._advance_lanes()
+            model.spawn(t)
+            model.lane_changes(t)
+            _restore(t, saved)
+    assert all(len(checked[name]) >= 450 for name in ("advance", "spawn", "lane_changes", "curve_speed"))
+    assert sum(checked["spawn"]) >= 20 and len(checked["crossings"]) >= 150 and len(checked["candidates"]) >= 150
+
+
+@pytest.mark.parametrize("road_map", [roads.concatenated().road_map, roads.roundabout()], ids=["urban", "roundabout"])
+def test_segment_search_within_a_lane_is_numpys_search(road_map):
+    """`kernels._find_segment` (a lane's own vertices) gives `TrafficMap._segment`'s index (a search of every
+    vertex, clamped to the lane): at the vertices, between them, off both ends of the lane, and NaN."""
+    m = lanes.TrafficMap(road_map)
+    assert np.all(np.diff(m.g) >= 0)  # the searches need the flat arc lengths sorted
+    rng = np.random.default_rng(0)
+    for lane in range(m.n_lanes):
+        vertices = m.g[m.first[lane]: m.last_segment[lane] + 2]
+        gq = np.concatenate([vertices, np.nextafter(vertices, -np.inf), np.nextafter(vertices, np.inf),
+                             rng.uniform(vertices[0] - 2.0, vertices[-1] + 2.0, 20), [np.nan, -np.inf, np.inf]])
+        expected = np.minimum(np.maximum(np.searchsorted(m.g, gq, side="right") - 1, m.first[lane]),
+                              m.last_segment[lane])
+        got = [kernels._find_segment(m.g, q, m.first[lane], m.last_segment[lane]) for q in gq]
+        assert np.array_equal(expected, got), lane
+
+
+def test_compile_kernels_compiles_every_traffic_kernel():
+    """`python -m mjdrive.traffic.compile_kernels` runs every kernel (a fresh process: none compiled before)."""
+    code = ("from mjdrive.traffic.compile_kernels import compile_kernels, uncompiled; "
+            "compile_kernels(); print(uncompiled())")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip().splitlines()[-1] == "[]"

@@ -14,7 +14,7 @@ from mjdrive import roads
 from mjdrive.compiled import numba_cache_dir
 from mjdrive.roads.lane import Lane
 from mjdrive.roads.route_frame import RouteFrame
-from mjdrive.traffic import kernels
+from mjdrive.traffic import kernels, state_kernels
 from mjdrive.traffic.model import Traffic
 from mjdrive.traffic.params import counts_to_kinds
 from mjdrive.traffic.urban import urban_traffic
@@ -22,17 +22,24 @@ from mjdrive.traffic.urban import urban_traffic
 
 def compile_kernels() -> float:
     """Run every kernel: a route frame's projection, and real traffic (the roundabout with pedestrians, the
-    concatenated urban map); the wall time [s] it took (the compilation, or loading it from the cache)."""
+    concatenated urban map, each half full so that spawns are checked); the wall time [s] it took (the
+    compilation, or loading it from the cache)."""
     start = time.perf_counter()
     rm = roads.roundabout()
     route = next(iter(roads.roundabout_routes(rm).values()))
     RouteFrame(Lane(rm.route_polyline(route), name="route"))(np.zeros((5, 2)), full=True)
     for traffic in (Traffic(rm, counts_to_kinds({"car": 6, "motorcycle": 1, "pedestrian": 2})),
                     urban_traffic(roads.concatenated())):
-        traffic.reset(np.random.default_rng(0))
+        traffic.reset(np.random.default_rng(0), density=0.5)
         for _ in range(3):
             traffic.advance(traffic.config.decision_period)
     return time.perf_counter() - start
+
+
+def uncompiled() -> list[str]:
+    """The traffic's kernels this process has not compiled (or loaded) yet: none after `compile_kernels`."""
+    return [f"{module.__name__}.{name}" for module in (kernels, state_kernels) for name, fn in vars(module).items()
+            if hasattr(fn, "signatures") and not name.startswith("_") and not fn.signatures]
 
 
 def main() -> int:

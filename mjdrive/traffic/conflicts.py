@@ -15,6 +15,7 @@ Every quantity is an (agents x approaches) array: no loop over road users.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -61,7 +62,7 @@ class ApproachTable:
     courtesy: np.ndarray  # (R,) bool: a merge where courteous vehicles open gaps (not a roundabout entry)
     point: np.ndarray  # (R, 2) [m] where the centre lines cross, or the merge point
 
-    @property
+    @functools.cached_property
     def partner(self) -> np.ndarray:
         """(R,) the row of the zone's other side."""
         half = len(self.lane) // 2

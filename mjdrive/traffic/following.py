@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mjdrive.traffic import kernels
+from mjdrive.traffic import kernels, state_kernels
 from mjdrive.traffic.conflicts import (
     AT_LINE,
     CHANGING_RADIUS,
@@ -36,7 +36,7 @@ def follower_table(t: Traffic, ctx: dict) -> dict:
     """The vehicles as followers for `_accelerations`."""
     nv = t.nv
     vs = t.vehicle_slots
-    return {"rows": np.arange(nv), "path": ctx["path"][:nv], "offset": ctx["offset"][:nv], "s": t.s,
+    return {"rows": t._vehicle_rows, "path": ctx["path"][:nv], "offset": ctx["offset"][:nv], "s": t.s,
             "v": t.v, "v0": t.v0, "length": t.length, "width": t.width, "a": t.a_max,
             "b": t.b_comf, "T": t.headway, "xy": t._current_pos[vs, :2],
             "yaw": t._current_yaw[vs], "accept_gap": t.config.accept_gap,
@@ -178,13 +178,11 @@ def gap_summary_kernel(t: Traffic, f: dict, ctx: dict, kappa: np.ndarray, den: n
     table = t.approaches if t.approaches is not None and len(t.approaches) else _NO_APPROACHES
     urban = bool(t.urban)
     if len(table):
-        waited_all = np.append(t.stopped_time, 0.0)  # [s] the ego never waits
+        waited_all = t._waited_all  # [s] (A,) the ego (last) never waits
+        waited_all[: t.nv] = t.stopped_time
         courteous_a = courteous_agents(t, ctx)
-        changing = np.flatnonzero(t.active & (t.lc_dist < cfg.lane_change_length))
-        changing_xy = t._current_pos[t.vehicle_slots[changing], :2]
     else:
         waited_all, courteous_a = np.zeros(len(ctx["s"])), np.zeros(len(ctx["s"]), dtype=bool)
-        changing, changing_xy = _NO_INT, np.zeros((0, 2))
     yaw, c = f["yaw"], np.ascontiguousarray  # the kernel is compiled for C-contiguous arrays
     return kernels.gap_summary(
         f["rows"], c(f["path"]), c(f["offset"]), f["s"], f["v"], f["length"], f["width"], f["T"], den,
@@ -196,7 +194,7 @@ def gap_summary_kernel(t: Traffic, f: dict, ctx: dict, kappa: np.ndarray, den: n
         m.ending, m.length,
         table.lane, table.s_in, table.s_out, table.other, table.o_in, table.o_out, table.yields, table.tie,
         table.timed, table.merge, table.stop, table.courtesy, c(table.point), table.partner,
-        waited_all, courteous_a, changing, c(changing_xy), t.nv,
+        waited_all, courteous_a, t.nv, t.active, t.lc_dist, cfg.lane_change_length, t.vehicle_slots, c(t._current_pos),
         cfg.min_gap, cfg.stop_gap, cfg.max_decel, cfg.corridor_range, cfg.corridor_margin, cfg.crosswalk_margin,
         cfg.merge_clearance, cfg.merge_speed, cfg.critical_gap_crossing, cfg.impatience, cfg.critical_gap_merge,
         cfg.courtesy_range, urban,
@@ -210,12 +208,11 @@ def _merge_state(t: Traffic, ctx: dict, accept_gap: float) -> tuple[np.ndarray, 
     an entering agent is committed past its yield line (circulating vehicles keep out of its way), in the
     kernel (`kernels.merge_state`)."""
     m, cfg = t.map, t.config
-    changing = np.flatnonzero(t.active & (t.lc_dist < cfg.lane_change_length))
     return kernels.merge_state(
         np.ascontiguousarray(ctx["lane"]), ctx["s"], ctx["v"], ctx["length"], ctx["offset"], m.yield_lane,
-        m.yield_merge, m.yield_stop, np.ascontiguousarray(t._current_pos[t.vehicle_slots[changing], :2]),
-        t.v[changing], t.length[changing], np.ascontiguousarray(m.merge_xy), accept_gap, cfg.merge_clearance,
-        cfg.merge_speed, cfg.merge_clearance + 3.0)
+        m.yield_merge, m.yield_stop, t.active, t.lc_dist, cfg.lane_change_length, t.vehicle_slots,
+        np.ascontiguousarray(t._current_pos), t.v, t.length, np.ascontiguousarray(m.merge_xy), accept_gap,
+        cfg.merge_clearance, cfg.merge_speed, cfg.merge_clearance + 3.0)
 
 
 _NO_BOOL = np.zeros(0, dtype=bool)
@@ -269,6 +266,11 @@ def obstacles(t: Traffic):
     if t._obstacle_cache is not None:
         return t._obstacle_cache
     ego = t.ego
+    if KERNELS:  # the same arrays in one compiled pass
+        t._obstacle_cache = state_kernels.obstacles(
+            t.active, t.vehicle_slots, t.pedestrian_slots, t._current_pos, t._current_yaw, t._current_speed,
+            t.half_size, t._slot_row, ego is not None, *_ego_obstacle(ego), t.nv)
+        return t._obstacle_cache
     slots = np.concatenate([t.vehicle_slots[t.active], t.pedestrian_slots])
     n = len(slots) + (ego is not None)
     xy, yaw, speed = np.empty((n, 2)), np.empty(n), np.empty(n)
@@ -282,3 +284,11 @@ def obstacles(t: Traffic):
         hl[k], hw[k], idx[k] = ego.length / 2, ego.width / 2, t.nv
     t._obstacle_cache = (xy, yaw, speed, hl, hw, idx)
     return t._obstacle_cache
+
+
+def _ego_obstacle(ego) -> tuple[float, float, float, float, float, float]:
+    """The ego's x, y [m], yaw [rad], speed [m/s], half length and half width [m] as `obstacles` takes them
+    (zeros without an ego)."""
+    if ego is None:
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    return float(ego.x), float(ego.y), float(ego.yaw), max(ego.speed, 0.0), ego.length / 2, ego.width / 2

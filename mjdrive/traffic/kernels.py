@@ -67,7 +67,9 @@ def gap_summary(
     # conflict-zone approaches (R,) (urban), empty elsewhere
     ap_lane, ap_s_in, ap_s_out, ap_other, ap_o_in, ap_o_out, ap_yields, ap_tie, ap_timed, ap_merge, ap_stop,
     ap_courtesy, ap_point, ap_partner,
-    waited_all, courteous_a, changing_rows, changing_xy, ego_row,
+    waited_all, courteous_a, ego_row,
+    # vehicles changing lane (NV,): active and lc_dist [m] below lane_change_length; their slots' poses (N, 3)
+    active_v, lc_dist, lane_change_length, vehicle_slots, slot_pos,
     # scalars: config
     min_gap, stop_gap, max_decel, corridor_range, corridor_margin, crosswalk_margin, merge_clearance,
     merge_speed, critical_gap_crossing, impatience, critical_gap_merge, courtesy_range, urban,
@@ -87,16 +89,17 @@ def gap_summary(
     two_b = 2 * max_decel
 
     # --- per agent and approach (urban): agents on the zone's other lane (the rest never conflict there) ----
-    inside = np.zeros((n_a, n_r), dtype=np.bool_)
-    ttz = np.full((n_a, n_r), INF)
-    held = np.zeros((n_a, n_r), dtype=np.bool_)
-    can_stop = np.zeros((n_a, n_r), dtype=np.bool_)
-    claiming = np.zeros((n_a, n_r), dtype=np.bool_)
-    in_zone = np.zeros((n_a, n_r), dtype=np.bool_)
-    t_line_o = np.full((n_a, n_r), INF)
-    waiting_o = np.zeros((n_a, n_r), dtype=np.bool_)
-    d_them = np.full((n_a, n_r), INF)
-    near = np.zeros((n_a, n_r), dtype=np.bool_)
+    # (written, and read, only for the agents on each approach's other lane)
+    inside = np.empty((n_a, n_r), dtype=np.bool_)
+    ttz = np.empty((n_a, n_r))
+    held = np.empty((n_a, n_r), dtype=np.bool_)
+    can_stop = np.empty((n_a, n_r), dtype=np.bool_)
+    claiming = np.empty((n_a, n_r), dtype=np.bool_)
+    in_zone = np.empty((n_a, n_r), dtype=np.bool_)
+    t_line_o = np.empty((n_a, n_r))
+    waiting_o = np.empty((n_a, n_r), dtype=np.bool_)
+    d_them = np.empty((n_a, n_r))
+    near = np.empty((n_a, n_r), dtype=np.bool_)
     on_lane = np.empty((n_r, n_a), dtype=np.int64)  # on_lane[r, :n_on[r]]: the agents on approach r's other lane
     n_on = np.zeros(n_r, dtype=np.int64)
     for a in range(n_a):
@@ -124,6 +127,8 @@ def gap_summary(
                 ttz[a, r] = (ap_o_in[r] - f_o) / pace
             elif ins:
                 ttz[a, r] = 0.0
+            else:
+                ttz[a, r] = INF
             before_line = v_a[a] < held_speed and f_o <= other_stop + committed_m
             at_line = other_stop - f_o < at_line_m
             held[a, r] = before_line and not (at_line and waited_all[a] >= turn_wait)
@@ -139,6 +144,13 @@ def gap_summary(
             dt_ = ap_o_out[r] - f_o
             d_them[a, r] = dt_
             near[a, r] = np.isfinite(dt_) and dt_ > -len_a[a] and dt_ < merge_range
+
+    changing = np.empty(len(active_v), dtype=np.int64)  # vehicles moving over between lanes
+    n_changing = 0
+    for j in range(len(active_v)):
+        if active_v[j] and lc_dist[j] < lane_change_length:
+            changing[n_changing] = j
+            n_changing += 1
 
     needed = np.empty(n_a)  # [m] the headway of an agent behind a merging follower
     for a in range(n_a):
@@ -238,9 +250,9 @@ def gap_summary(
                         first = True
             claimed = claimed_any and not yields and not tie and _can_stop(
                 v_me, me_stop, claim_decel, stop_margin, held_speed, committed_m)
-            for j in range(len(changing_rows)):
-                if changing_rows[j] != row and np.hypot(changing_xy[j, 0] - ap_point[r, 0],
-                                                        changing_xy[j, 1] - ap_point[r, 1]) < changing_radius:
+            for j in changing[:n_changing]:
+                if j != row and np.hypot(slot_pos[vehicle_slots[j], 0] - ap_point[r, 0],
+                                         slot_pos[vehicle_slots[j], 1] - ap_point[r, 1]) < changing_radius:
                     promised = True
             wait_timed = timed and ((yields and soon) or (tie and first))
 
@@ -329,33 +341,75 @@ def plan_distances(v, accel, t_plan):
     return ds
 
 
+@_inline
+def _find_segment(g, gq: float, first: int, last: int) -> int:
+    """`TrafficMap._segment`'s segment of a lane (segments first..last): np.searchsorted(g, gq, side="right") - 1
+    clamped to [first, last], searched among the lane's own vertices (the same index: g is sorted, so the
+    vertices before `first` and after `last` only move the unclamped index outside [first, last])."""
+    if gq != gq:  # NaN sorts past the end
+        return last
+    lo, hi = first, last + 1
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if g[mid] <= gq:
+            lo = mid + 1
+        else:
+            hi = mid
+    return max(lo - 1, first)
+
+
 @_jit
-def centre_poses(s, ds, before, path, last_index, base, lane_length, first, last_segment, g, inv, x0, dx, y0, dy,
-                 h0, dh):
+def centre_poses(s, ds, before, path, base, lane_length, first, last_segment, g, inv, x0, dx, y0, dy, h0, dh):
     """Centre-line x, y [m] and heading [rad] (S, NV) of each vehicle's lane after moving ds (S, NV) [m] from s
     along its path (`before` (NV, PATH) [m]: to the start of each path lane), as `Traffic._centre_poses` and
-    `TrafficMap.lookup` compute them."""
+    `TrafficMap.lookup` compute them. Each vehicle's segment search goes on from its previous substep's."""
     n_s, n_v, n_p = ds.shape[0], len(s), before.shape[1]
     x = np.empty((n_s, n_v))
     y = np.empty((n_s, n_v))
     h = np.empty((n_s, n_v))
-    for i in range(n_s):
-        for n in range(n_v):
+    for n in range(n_v):
+        last_index = -1  # `Traffic._last_path_index`
+        for j in range(n_p):
+            if path[n, j] >= 0:
+                last_index += 1
+        last_index = max(last_index, 0)
+        previous_lane, seg = -1, 0
+        for i in range(n_s):
             p = s[n] + ds[i, n]
             k = 0
             for j in range(1, n_p):
                 if p >= before[n, j]:
                     k += 1
-            k = min(k, last_index[n])
+            k = min(k, last_index)
             lane = max(path[n, k], 0)
             gq = base[lane] + _minimum(_maximum(p - before[n, k], 0.0), lane_length[lane])
-            seg = np.searchsorted(g, gq, side="right") - 1
-            seg = min(max(seg, first[lane]), last_segment[lane])
+            if lane == previous_lane and gq >= g[seg]:  # further along the same lane: walk on
+                while seg < last_segment[lane] and g[seg + 1] <= gq:
+                    seg += 1
+            else:
+                seg = _find_segment(g, gq, first[lane], last_segment[lane])
+            previous_lane = lane
             u = (gq - g[seg]) * inv[seg]
             x[i, n] = x0[seg] + u * dx[seg]
             y[i, n] = y0[seg] + u * dy[seg]
             h[i, n] = h0[seg] + u * dh[seg]
     return x, y, h
+
+
+@_jit
+def curve_speed(lane, s, base, lane_length, first, last_segment, g, inv, v0, dv, k0, dk):
+    """`TrafficMap.curve_speed`: the anticipated curve speed [m/s] and the curvature [1/m] at s [m] on `lane`."""
+    n = len(s)
+    speed = np.empty(n)
+    kappa = np.empty(n)
+    for f in range(n):
+        lane_f = lane[f]
+        gq = base[lane_f] + _minimum(_maximum(s[f], 0.0), lane_length[lane_f])
+        seg = _find_segment(g, gq, first[lane_f], last_segment[lane_f])
+        u = (gq - g[seg]) * inv[seg]
+        speed[f] = v0[seg] + u * dv[seg]
+        kappa[f] = k0[seg] + u * dk[seg]
+    return speed, kappa
 
 
 @_jit
@@ -566,8 +620,9 @@ def path_context(vehicle_path, active, ego_path, lane_length, n_lanes):
 
 
 @_jit
-def merge_state(lane_a, s_a, v_a, len_a, offset_a, yield_lane, yield_merge, yield_stop, changing_xy, changing_v,
-                changing_len, merge_xy, accept_gap, merge_clearance, merge_speed, start_clearance):
+def merge_state(lane_a, s_a, v_a, len_a, offset_a, yield_lane, yield_merge, yield_stop, active_v, lc_dist,
+                lane_change_length, vehicle_slots, slot_pos, v, length, merge_xy, accept_gap, merge_clearance,
+                merge_speed, start_clearance):
     """Roundabout merges (Y,): `merges.merge_conflicts` (a priority agent reaches the merge point too soon,
     still occupies the start of the merged lane, or is moving over near it) and whether an entering agent is
     committed past its yield line, as `following._merge_state` computes them."""
@@ -588,9 +643,12 @@ def merge_state(lane_a, s_a, v_a, len_a, offset_a, yield_lane, yield_merge, yiel
                 past = s_a[a] + len_a[a] / 2 - yield_stop[y]
                 if past > 1.0 or (past > 0.5 and v_a[a] >= 1.0):
                     committed[y] = True
-        for c in range(len(changing_v)):
-            near = np.hypot(changing_xy[c, 0] - merge_xy[y, 0], changing_xy[c, 1] - merge_xy[y, 1])
-            reach = _maximum(changing_v[c], merge_speed) * accept_gap + merge_clearance
-            if near - changing_len[c] / 2 < reach:
+        for c in range(len(active_v)):  # vehicles changing lane
+            if not (active_v[c] and lc_dist[c] < lane_change_length):
+                continue
+            slot = vehicle_slots[c]
+            near = np.hypot(slot_pos[slot, 0] - merge_xy[y, 0], slot_pos[slot, 1] - merge_xy[y, 1])
+            reach = _maximum(v[c], merge_speed) * accept_gap + merge_clearance
+            if near - length[c] / 2 < reach:
                 conflict[y] = True
     return conflict, committed

@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mjdrive.traffic import kernels
+from mjdrive.traffic import kernels, state_kernels
 from mjdrive.traffic.geometry import smoothstep
 from mjdrive.traffic.intentions import KEEP, LANE_CHANGE, LEFT, RIGHT
 from mjdrive.traffic.kernels import KERNELS
@@ -23,7 +23,24 @@ def lane_changes(t: Traffic) -> None:
     rates (`lane_changes="random"`) or, under urban rules (`"intention"`), by each vehicle's lane-change
     intention after `signal_time` of signalling, if the new follower need not brake harder than
     `safe_decel` (MOBIL's safety criterion)."""
-    m, cfg = t.map, t.config
+    cfg = t.config
+    lane0, right, left, near_merge = _options(t)
+    if cfg.lane_changes == "intention":
+        _finish_intended(t)
+        chosen = _intended(t, right, left, near_merge, lane0)
+    else:
+        chosen = _random(t, right, left, near_merge)
+    if chosen is not None:
+        _change(t, *chosen, lane0, right, left)
+
+
+def _options(t: Traffic) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Current lanes (NV,), right and left neighbours (-1: none) and whether each vehicle is near a merge
+    (`state_kernels.lane_change_options` with numba: the same)."""
+    m = t.map
+    if KERNELS:
+        return state_kernels.lane_change_options(t.path, t.s, m.length, m.right, m.left, m.ends_at_merge,
+                                                 m.starts_at_merge, m.n_successors)
     lane0 = np.maximum(t.path[:, 0], 0)
     right, left = m.right[lane0], m.left[lane0]
     # Not near a merge point (an entry joining the ring), where entering vehicles cut in, and not to the
@@ -32,21 +49,13 @@ def lane_changes(t: Traffic) -> None:
     near_merge = ((m.ends_at_merge[lane0] & (s > length - 12.0)) | (m.starts_at_merge[lane0] & (s < 8.0)))
     near_exit = (m.n_successors[lane0] > 1) & (s > length - 12.0)  # moving right in front of an exit
     right = np.where(near_exit, -1, right)
-    if cfg.lane_changes == "intention":
-        _finish_intended(t)
-        chosen = _intended(t, right, left, near_merge)
-    else:
-        chosen = _random(t, right, left, near_merge)
-    if chosen is not None:
-        _change(t, *chosen, lane0, right, left)
+    return lane0, right, left, near_merge
 
 
 def _random(t: Traffic, right: np.ndarray, left: np.ndarray, near_merge: np.ndarray) -> tuple[int, int] | None:
     """(row, side) of one random try at the rates of `lane_change_rate` (side 0: right, 1: left), or None."""
     cfg = t.config
-    ok = (t.active & ((right >= 0) | (left >= 0)) & (t.lc_dist >= cfg.lane_change_length)
-          & (t.s > 1.0) & (t.lead_gap > cfg.lane_change_length) & ~near_merge)
-    rows = np.flatnonzero(ok)
+    rows = _candidates(t, right, left, near_merge)
     if not len(rows):
         return None
     rate_right, rate_left = cfg.lane_change_rate
@@ -58,15 +67,29 @@ def _random(t: Traffic, right: np.ndarray, left: np.ndarray, near_merge: np.ndar
     return row, side
 
 
-def _intended(t: Traffic, right: np.ndarray, left: np.ndarray, near_merge: np.ndarray) -> tuple[int, int] | None:
+def _candidates(t: Traffic, right: np.ndarray, left: np.ndarray, near_merge: np.ndarray) -> np.ndarray:
+    """Rows (K,) that may change lane at random now (`state_kernels.random_lane_change_rows` with numba)."""
+    cfg = t.config
+    if KERNELS:
+        return state_kernels.random_lane_change_rows(t.active, right, left, t.lc_dist, t.s, t.lead_gap, near_merge,
+                                                     cfg.lane_change_length)
+    ok = (t.active & ((right >= 0) | (left >= 0)) & (t.lc_dist >= cfg.lane_change_length)
+          & (t.s > 1.0) & (t.lead_gap > cfg.lane_change_length) & ~near_merge)
+    return np.flatnonzero(ok)
+
+
+def _intended(t: Traffic, right: np.ndarray, left: np.ndarray, near_merge: np.ndarray,
+              lane0: np.ndarray | None = None) -> tuple[int, int] | None:
     """Vehicles whose intention has a neighbour lane on its side signal; the one signalling longest for at
-    least `signal_time` tries (row, side), or None. (`kernels.intended_lane_change` with numba: the same.)"""
+    least `signal_time` tries (row, side), or None (`lane0`: the current lanes, if known).
+    (`kernels.intended_lane_change` with numba: the same.)"""
     cfg = t.config
     if KERNELS:
         points = t.approaches.point if t.approaches is not None else np.zeros((0, 2))
         signal = t.lc_signal.copy()
         row, side = kernels.intended_lane_change(
-            np.ascontiguousarray(t.intention[:, LANE_CHANGE]), np.maximum(t.path[:, 0], 0), left, right, near_merge,
+            np.ascontiguousarray(t.intention[:, LANE_CHANGE]), np.maximum(t.path[:, 0], 0) if lane0 is None else lane0,
+            left, right, near_merge,
             t.map.ending, t.map.n_successors, t.roles.priority, t.active, t.lc_dist, t.s, signal, t.lc_changing,
             np.ascontiguousarray(t._current_pos[t.vehicle_slots, :2]), np.ascontiguousarray(points), t.time,
             cfg.lane_change_length, ZONE_CLEARANCE + cfg.lane_change_length, cfg.signal_time - 1e-9, LEFT, RIGHT)
@@ -98,6 +121,10 @@ def _intended(t: Traffic, right: np.ndarray, left: np.ndarray, near_merge: np.nd
 
 def _finish_intended(t: Traffic) -> None:
     """Intended lane changes that are over: the vehicle now keeps its lane, its signal goes off."""
+    if KERNELS:
+        state_kernels.finish_lane_changes(t.lc_changing, t.lc_dist, t.intention, t.lc_signal,
+                                          t.config.lane_change_length, LANE_CHANGE, KEEP)
+        return
     done = t.lc_changing & (t.lc_dist >= t.config.lane_change_length)
     t.intention[done, LANE_CHANGE] = KEEP
     t.lc_signal[done] = -1.0

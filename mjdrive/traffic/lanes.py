@@ -11,6 +11,8 @@ import numpy as np
 
 from mjdrive.roads import Marking, RoadMap, spawn_points
 from mjdrive.roads.geometry import BOX_CORNERS, box_points
+from mjdrive.traffic import kernels
+from mjdrive.traffic.kernels import KERNELS
 
 LANE_GAP = 1.0  # [m] gap between consecutive lanes in the flat arc-length coordinate
 REFERENCE_HALF_SIZE = (2.4, 1.0)  # [m] half length and half width of the largest vehicle (stop lines)
@@ -102,7 +104,11 @@ class TrafficMap:
 
     def curve_speed(self, lane: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Curve speed [m/s] anticipating the curves ahead on `lane` (at `anticipation` deceleration; add
-        those of the next lane with `entry_speed`), and the curvature [1/m], at arc length s [m] on `lane`."""
+        those of the next lane with `entry_speed`), and the curvature [1/m], at arc length s [m] on `lane`
+        ((F,) arrays; `kernels.curve_speed` with numba: the same numbers)."""
+        if KERNELS:
+            return kernels.curve_speed(lane, s, self.base, self.length, self.first, self.last_segment, self.g,
+                                       self._inv, self._v0, self._dv, self._k0, self._dk)
         i, t = self._segment(lane, s)
         return self._v0[i] + t * self._dv[i], self._k0[i] + t * self._dk[i]
 

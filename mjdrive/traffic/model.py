@@ -45,7 +45,7 @@ import numpy as np
 from mjdrive.compiled import announce_compilation
 from mjdrive.roads import RoadMap
 from mjdrive.roads.conflicts import ConflictZones
-from mjdrive.traffic import kernels
+from mjdrive.traffic import kernels, state_kernels
 from mjdrive.traffic.conflicts import ApproachTable
 from mjdrive.traffic.following import accelerations, follower_table
 from mjdrive.traffic.geometry import smoothstep, yaw_quat
@@ -152,6 +152,8 @@ class Traffic:
         self.n_plan = max(1, int(round(cfg.decision_period / cfg.substep)))
         self._t_plan = cfg.substep * np.arange(1, self.n_plan + 1)  # [s]
         self._hidden = np.column_stack([np.zeros(self.n), np.zeros(self.n), HIDDEN_Z - 5.0 * np.arange(self.n)])
+        self._hidden_vehicles = self._hidden[self.vehicle_slots]  # [m] (NV, 3)
+        self._vehicle_rows = np.arange(self.nv)
         self.mocap_ids: np.ndarray | None = None
         self._mocap: slice | np.ndarray | None = None  # where the slots are in data.mocap_*
         self._views = None  # (data, data.mocap_pos, data.mocap_quat) of the last `write`
@@ -161,6 +163,7 @@ class Traffic:
         self.ego: EgoState | None = None
         self._obstacle_cache = None
         self._ctx_s, self._ctx_v, self._ctx_len = np.zeros(self.nv + 1), np.zeros(self.nv + 1), np.zeros(self.nv + 1)
+        self._waited_all = np.zeros(self.nv + 1)  # [s] waiting times of the agents (the ego last, 0), kernels'
         self._b_agents = np.append(self.b_comf, 3.0)  # [m/s^2] comfortable deceleration, the ego last
         self._row_base = np.arange(self.nv) * PATH
         self._slot_row = np.full(self.n, -1, dtype=np.int64)  # vehicle row of each slot (-1: pedestrian)
@@ -224,13 +227,13 @@ class Traffic:
         """A uniformly random successor of each lane (-1 for a dead end or -1); with urban rules, one that
         honours the intentions of vehicles `rows` (whose paths `lane` belongs to)."""
         m = self.map
-        valid = lane >= 0
-        lane0 = np.maximum(lane, 0)
         if self.urban and rows is not None and len(rows) and KERNELS:  # the same in one compiled pass
             roles = self.roles
             return kernels.choose_successors(
                 rows, lane, self.rng.random(len(lane)), m.successors, roles.turn, roles.ring, roles.ring_exit,
                 self.intention, self.ring_passed, int(self.ego_exit), CROSSROAD, ROUNDABOUT, BEFORE, AFTER)
+        valid = lane >= 0
+        lane0 = np.maximum(lane, 0)
         if self.urban and rows is not None and len(rows):
             allowed = successor_preference(self, rows, lane)  # (K, W)
             count = allowed.sum(axis=1) * valid
@@ -414,6 +417,13 @@ class Traffic:
 
     def _advance_lanes(self) -> None:
         """Vehicles past the end of their lane move on along their path (or leave the map at dead ends)."""
+        if KERNELS:  # the same, a round per compiled pass (the successors' draws stay here)
+            while True:
+                rows, gone = state_kernels.lanes_passed(self.s, self.path, self.active, self.v, self.map.length)
+                if not len(rows):
+                    return
+                self.path[rows, -1] = self._choose_successor(self.path[rows, -2], rows)
+                self.stats["despawned"] += gone
         while True:
             over = self.active & (self.s >= self.map.length[np.maximum(self.path[:, 0], 0)])
             if not over.any():
@@ -482,11 +492,15 @@ class Traffic:
         if KERNELS:
             d, yaw = self._lateral(ds, h)
             kernels.place_vehicles(x, y, np.sin(h), np.cos(h), d, yaw, self.v, self.accel, self._t_plan, self.active,
-                                   self._hidden[vs], vs, out_pos, out_yaw, out_speed)
+                                   self._hidden_vehicles, vs, out_pos, out_yaw, out_speed)
         else:
             out_pos[:, vs], out_yaw[:, vs] = self._offset_poses(ds, x, y, h)
             out_speed[:, vs] = np.maximum(v + a * t, 0.0) * self.active[None]
-        if self.np_:
+        if self.np_ and KERNELS:
+            state_kernels.place_pedestrians(self.ped_u, self.ped_dir, self.ped_speed, self.ped_walking, self._ped_end,
+                                            self._ped_centre, self._ped_along, self._ped_side, self._ped_heading, t,
+                                            self.pedestrian_slots, out_pos, out_yaw, out_speed)
+        elif self.np_:
             ps = self.pedestrian_slots
             out_pos[:, ps], out_yaw[:, ps], out_speed[:, ps] = pedestrian_poses(self, t)
         return _Plan(out_pos, yaw_quat(out_yaw), out_yaw, out_speed)
@@ -494,10 +508,19 @@ class Traffic:
     def _vehicle_poses(self, ds: np.ndarray, before: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Poses (S, NV, 3), yaw (S, NV) of the vehicles after moving ds (S, NV) [m] along their paths
         (`before`: distance (NV, PATH) [m] to the start of each path lane, if known)."""
+        if KERNELS:  # placed as in `_make_plan`
+            x, y, h = self._centre_poses(ds, before)
+            d, yaw = self._lateral(ds, h)
+            pos, out_yaw = np.empty(ds.shape + (3,)), np.empty(ds.shape)
+            kernels.place_vehicles(x, y, np.sin(h), np.cos(h), d, yaw, self.v, self.accel, self._t_plan, self.active,
+                                   self._hidden_vehicles, self._vehicle_rows, pos, out_yaw, np.empty(ds.shape))
+            return pos, out_yaw
         return self._offset_poses(ds, *self._centre_poses(ds, before))
 
     def _path_starts(self) -> np.ndarray:
         """(NV, PATH) [m] from each vehicle's lane start to the start of each lane on its path (inf past its end)."""
+        if KERNELS:
+            return state_kernels.path_starts(self.path, self.map.length)
         before = np.zeros((self.nv, PATH))
         path = self.path
         np.cumsum(np.where(path[:, :-1] >= 0, self.map.length[path[:, :-1]], np.inf), axis=1, out=before[:, 1:])
@@ -509,8 +532,8 @@ class Traffic:
             before = self._path_starts()
         path, m = self.path, self.map
         if KERNELS:  # the same numbers in one compiled pass
-            return kernels.centre_poses(self.s, ds, before, path, self._last_path_index(), m.base, m.length, m.first,
-                                        m.last_segment, m.g, m._inv, m._x0, m._dx, m._y0, m._dy, m._h0, m._dh)
+            return kernels.centre_poses(self.s, ds, before, path, m.base, m.length, m.first, m.last_segment, m.g,
+                                        m._inv, m._x0, m._dx, m._y0, m._dy, m._h0, m._dh)
         p = self.s[None] + ds
         k = (p[..., None] >= before[None, :, 1:]).sum(-1)  # (S, NV) index into the path
         k = np.minimum(k, self._last_path_index()[None])  # stay on a dead end's last lane
@@ -521,7 +544,7 @@ class Traffic:
     def _lateral(self, ds: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Lateral offset d [m] (S or 1, NV) from the centre line and yaw [rad] (S, NV) after moving ds (S, NV) [m]
         (lane changes under way move across along a smoothstep; h: the centre line's heading)."""
-        if np.any(self.lc_dist < self.config.lane_change_length):  # lane changes under way
+        if (self.lc_dist < self.config.lane_change_length).any():  # lane changes under way
             sm, dsm = smoothstep((self.lc_dist[None] + ds) / self.config.lane_change_length)
             d = self.d_pref[None] + self.lc_shift[None] * (1.0 - sm)
             return d, h + np.arctan(-self.lc_shift[None] * dsm / self.config.lane_change_length)

@@ -7,6 +7,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from mjdrive.traffic import state_kernels
+from mjdrive.traffic.kernels import KERNELS
+
 if TYPE_CHECKING:
     from mjdrive.traffic.model import Traffic
 
@@ -55,8 +58,12 @@ def threatened_crosswalks(t: Traffic, ctx: dict) -> np.ndarray:
 
 
 def occupied_crossings(t: Traffic) -> np.ndarray:
-    """Crossings (K,) with a pedestrian walking in the lane's band (+ margin) or towards it."""
+    """Crossings (K,) with a pedestrian walking in the lane's band (+ margin) or towards it
+    (`state_kernels.occupied_crossings` with numba: the same)."""
     m, cfg = t.map, t.config
+    if KERNELS:
+        return state_kernels.occupied_crossings(t.ped_walking, t.ped_cw, t.ped_u, t.ped_dir, m.cross_cw, m.cross_u,
+                                                cfg.crosswalk_margin + 0.3)
     on = t.ped_walking[None] & (t.ped_cw[None] == m.cross_cw[:, None])  # (K, P)
     u, direction = t.ped_u[None], t.ped_dir[None]
     margin = cfg.crosswalk_margin + 0.3

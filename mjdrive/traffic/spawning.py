@@ -7,7 +7,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from mjdrive.traffic import state_kernels
 from mjdrive.traffic.intentions import LANE_CHANGE, draw
+from mjdrive.traffic.kernels import KERNELS
 
 if TYPE_CHECKING:
     from mjdrive.traffic.model import Traffic
@@ -39,16 +41,13 @@ def spawn(t: Traffic) -> bool:
         due = t.intent_rng.random(len(idle)) < cfg.spawn_rate * cfg.decision_period
         if not due.any():
             return False
-    lane = np.where(t.active, t.path[:, 0], -1)
-    near_start = (lane[:, None] == lanes[None]) & (np.abs(t.s[:, None] - starts[None]) - t.length[:, None] / 2
-                                                   < cfg.spawn_clear)
-    clear = ~near_start.any(axis=0)
-    if t.urban:  # short source lanes: anything near the place counts, whatever lane it is on
-        xy = t._current_pos[t.vehicle_slots[t.active], :2]
-        dist = np.hypot(xy[:, None, 0] - place_xy[None, :, 0], xy[:, None, 1] - place_xy[None, :, 1])
-        clear &= ~(dist < cfg.spawn_clear).any(axis=0)
-    if t.ego is not None:
-        clear &= np.hypot(place_xy[:, 0] - t.ego.x, place_xy[:, 1] - t.ego.y) >= cfg.spawn_clear
+    if KERNELS:  # the same places in one compiled pass
+        ego = t.ego
+        clear = state_kernels.spawn_clear(lanes, starts, place_xy, t.active, t.path, t.s, t.length, t._current_pos,
+                                          t.vehicle_slots, bool(t.urban), ego.x if ego is not None else 0.0,
+                                          ego.y if ego is not None else 0.0, ego is not None, cfg.spawn_clear)
+    else:
+        clear = _clear_places(t, lanes, starts, place_xy)
     ok = clear[pick] & due
     if not ok.any():
         return False
@@ -66,6 +65,24 @@ def spawn(t: Traffic) -> bool:
         t.intention[rows[planned], LANE_CHANGE] = np.where(wish >= 0, wish, t.intention[rows[planned], LANE_CHANGE])
     t.stats["spawned"] += len(rows)
     return True
+
+
+def _clear_places(t: Traffic, lanes: np.ndarray, starts: np.ndarray, place_xy: np.ndarray) -> np.ndarray:
+    """(Q,) places with no active vehicle on their lane within `spawn_clear` of them (bumper to place), under
+    urban rules none whose centre is that close whatever its lane, and not the ego
+    (`state_kernels.spawn_clear` with numba)."""
+    cfg = t.config
+    lane = np.where(t.active, t.path[:, 0], -1)
+    near_start = (lane[:, None] == lanes[None]) & (np.abs(t.s[:, None] - starts[None]) - t.length[:, None] / 2
+                                                   < cfg.spawn_clear)
+    clear = ~near_start.any(axis=0)
+    if t.urban:  # short source lanes: anything near the place counts, whatever lane it is on
+        xy = t._current_pos[t.vehicle_slots[t.active], :2]
+        dist = np.hypot(xy[:, None, 0] - place_xy[None, :, 0], xy[:, None, 1] - place_xy[None, :, 1])
+        clear &= ~(dist < cfg.spawn_clear).any(axis=0)
+    if t.ego is not None:
+        clear &= np.hypot(place_xy[:, 0] - t.ego.x, place_xy[:, 1] - t.ego.y) >= cfg.spawn_clear
+    return clear
 
 
 def _places(t: Traffic) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -1,0 +1,184 @@
+"""Compiled kernels (numba) of a decision's bookkeeping around the gap table: lanes passed, lane-change
+options, clear spawn places, the corridor's obstacles, path starts, crossings and pedestrian poses.
+
+Each repeats the numpy code it stands for (named in its docstring) operation for operation, as in `kernels`;
+without numba (`KERNELS` False) the numpy code runs, and `tests/test_traffic_kernels.py` runs both at every
+decision and compares the results and the state they leave bit for bit. What is drawn from a random generator
+stays in numpy (the kernels return what the draws need).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mjdrive.compiled import jit as _jit
+from mjdrive.traffic.kernels import _maximum, _minimum
+
+
+@_jit
+def lanes_passed(s, path, active, v, lane_length):
+    """One round of `Traffic._advance_lanes`, in place: active vehicles past the end of their lane (s >= its
+    length [m]) move on to the next lane of their path (s less that length, the path shifted by one, its last
+    entry left for the caller to draw); those whose path ends there leave the map (inactive, speed 0). Returns
+    the rows that moved on (K,), in order, and how many of them left."""
+    n_v, n_p = path.shape
+    rows = np.empty(n_v, dtype=np.int64)
+    k = 0
+    for r in range(n_v):
+        if active[r] and s[r] >= lane_length[max(path[r, 0], 0)]:
+            rows[k] = r
+            k += 1
+    gone = 0
+    for j in range(k):
+        r = rows[j]
+        s[r] -= lane_length[path[r, 0]]
+        for c in range(n_p - 1):
+            path[r, c] = path[r, c + 1]
+        if path[r, 0] < 0:
+            active[r] = False
+            v[r] = 0.0
+            gone += 1
+    return rows[:k], gone
+
+
+@_jit
+def lane_change_options(path, s, lane_length, right_of, left_of, ends_at_merge, starts_at_merge, n_successors):
+    """`lane_changes.lane_changes`' lane0 (current lanes), right and left neighbours (-1: none; not to the
+    right in front of an exit) and whether each vehicle is near a merge."""
+    n_v = len(s)
+    lane0 = np.empty(n_v, dtype=np.int64)
+    right = np.empty(n_v, dtype=np.int64)
+    left = np.empty(n_v, dtype=np.int64)
+    near_merge = np.empty(n_v, dtype=np.bool_)
+    for r in range(n_v):
+        lane = max(path[r, 0], 0)
+        lane0[r] = lane
+        length = lane_length[lane]
+        near_merge[r] = (ends_at_merge[lane] and s[r] > length - 12.0) or (starts_at_merge[lane] and s[r] < 8.0)
+        near_exit = n_successors[lane] > 1 and s[r] > length - 12.0
+        right[r] = -1 if near_exit else right_of[lane]
+        left[r] = left_of[lane]
+    return lane0, right, left, near_merge
+
+
+@_jit
+def finish_lane_changes(lc_changing, lc_dist, intention, lc_signal, lane_change_length, column, keep):
+    """`lane_changes._finish_intended`, in place: intended lane changes that are over (lc_dist [m] at least
+    `lane_change_length`) keep their lane (intention[:, column] = keep), their signal goes off."""
+    for r in range(len(lc_changing)):
+        if lc_changing[r] and lc_dist[r] >= lane_change_length:
+            intention[r, column] = keep
+            lc_signal[r] = -1.0
+            lc_changing[r] = False
+
+
+@_jit
+def random_lane_change_rows(active, right, left, lc_dist, s, lead_gap, near_merge, lane_change_length):
+    """`lane_changes._random`'s candidates: the rows (K,) that may change lane now."""
+    rows = np.empty(len(s), dtype=np.int64)
+    k = 0
+    for r in range(len(s)):
+        if (active[r] and (right[r] >= 0 or left[r] >= 0) and lc_dist[r] >= lane_change_length and s[r] > 1.0
+                and lead_gap[r] > lane_change_length and not near_merge[r]):
+            rows[k] = r
+            k += 1
+    return rows[:k]
+
+
+@_jit
+def spawn_clear(lanes, starts, place_xy, active, path, s, length, pos, vehicle_slots, urban, ego_x, ego_y, has_ego,
+                clearance):
+    """`spawning.spawn`'s clear places (Q,): no active vehicle on the place's lane within `clearance` [m] of its
+    s (bumper to place); under urban rules none whose centre is within it, whatever its lane; and not the ego."""
+    n_q, n_v = len(lanes), len(s)
+    clear = np.ones(n_q, dtype=np.bool_)
+    for q in range(n_q):
+        for r in range(n_v):
+            lane = path[r, 0] if active[r] else -1
+            if lane == lanes[q] and abs(s[r] - starts[q]) - length[r] / 2 < clearance:
+                clear[q] = False
+        if urban:
+            for r in range(n_v):
+                if active[r]:
+                    slot = vehicle_slots[r]
+                    dist = np.hypot(pos[slot, 0] - place_xy[q, 0], pos[slot, 1] - place_xy[q, 1])
+                    if dist < clearance:
+                        clear[q] = False
+        if has_ego and not np.hypot(place_xy[q, 0] - ego_x, place_xy[q, 1] - ego_y) >= clearance:
+            clear[q] = False
+    return clear
+
+
+@_jit
+def obstacles(active, vehicle_slots, pedestrian_slots, pos, yaw, speed, half_size, slot_row, has_ego, ego_x, ego_y,
+              ego_yaw, ego_speed, ego_half_length, ego_half_width, ego_row):
+    """`following.obstacles`: centre xy (O, 2) [m], yaw [rad], speed [m/s], half length and width [m] and follower
+    row of the active vehicles, the pedestrians, then the ego (if `has_ego`)."""
+    n_active = 0
+    for r in range(len(active)):
+        n_active += active[r]
+    n = n_active + len(pedestrian_slots) + (1 if has_ego else 0)
+    xy, out_yaw, out_speed = np.empty((n, 2)), np.empty(n), np.empty(n)
+    hl, hw, idx = np.empty(n), np.empty(n), np.empty(n, dtype=np.int64)
+    k = 0
+    for j in range(len(active) + len(pedestrian_slots)):
+        if j < len(active):
+            if not active[j]:
+                continue
+            slot = vehicle_slots[j]
+        else:
+            slot = pedestrian_slots[j - len(active)]
+        xy[k, 0], xy[k, 1] = pos[slot, 0], pos[slot, 1]
+        out_yaw[k], out_speed[k] = yaw[slot], speed[slot]
+        hl[k], hw[k], idx[k] = half_size[slot, 0], half_size[slot, 1], slot_row[slot]
+        k += 1
+    if has_ego:
+        xy[k, 0], xy[k, 1], out_yaw[k], out_speed[k] = ego_x, ego_y, ego_yaw, ego_speed
+        hl[k], hw[k], idx[k] = ego_half_length, ego_half_width, ego_row
+    return xy, out_yaw, out_speed, hl, hw, idx
+
+
+@_jit
+def path_starts(path, lane_length):
+    """`Traffic._path_starts`: (NV, PATH) [m] from each vehicle's lane start to the start of each lane on its path
+    (inf past its end)."""
+    n_v, n_p = path.shape
+    before = np.zeros((n_v, n_p))
+    for r in range(n_v):
+        for j in range(1, n_p):
+            previous = path[r, j - 1]
+            length = lane_length[previous] if previous >= 0 else np.inf
+            before[r, j] = length if j == 1 else before[r, j - 1] + length
+    return before
+
+
+@_jit
+def occupied_crossings(walking, ped_cw, ped_u, ped_dir, cross_cw, cross_u, margin):
+    """`pedestrians.occupied_crossings`: crossings (K,) with a pedestrian walking in the lane's band (+ margin
+    [m]) or towards it."""
+    n_k = len(cross_cw)
+    out = np.zeros(n_k, dtype=np.bool_)
+    for k in range(n_k):
+        lo, hi = cross_u[k, 0] - margin, cross_u[k, 1] + margin
+        for p in range(len(walking)):
+            if walking[p] and ped_cw[p] == cross_cw[k]:
+                if (ped_u[p] < hi) if ped_dir[p] > 0 else (ped_u[p] > lo):
+                    out[k] = True
+    return out
+
+
+@_jit
+def place_pedestrians(ped_u, ped_dir, ped_speed, walking, end, centre, along, side, heading, times, slots, out_pos,
+                      out_yaw, out_speed):
+    """`pedestrians.pedestrian_poses` at `times` (S, 1) [s] ahead, into columns `slots` of out_pos (S, N, 3),
+    out_yaw (S, N) and out_speed (S, N) (as `Traffic._make_plan` places them)."""
+    for i in range(times.shape[0]):
+        t = times[i, 0]
+        for p in range(len(ped_u)):
+            slot = slots[p]
+            u = _minimum(_maximum(ped_u[p] + (ped_dir[p] * ped_speed[p] * walking[p]) * t, -end[p]), end[p])
+            out_pos[i, slot, 0] = centre[p, 0] + u * along[p, 0] + side[p, 0]
+            out_pos[i, slot, 1] = centre[p, 1] + u * along[p, 1] + side[p, 1]
+            out_pos[i, slot, 2] = 0.0
+            out_yaw[i, slot] = heading[p] + (ped_dir[p] < 0) * np.pi
+            out_speed[i, slot] = ped_speed[p] if walking[p] and abs(u) < end[p] else 0.0
