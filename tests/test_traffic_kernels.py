@@ -140,8 +140,10 @@ def _checked_bookkeeping(monkeypatch) -> dict[str, list]:
         "finish": _both_ways(monkeypatch, lane_changes, "_finish_intended", lane_changes,
                              ("intention", "lc_signal", "lc_changing")),
         "candidates": _both_ways(monkeypatch, lane_changes, "_candidates", lane_changes),
+        "room": _both_ways(monkeypatch, lane_changes, "_room", lane_changes),
         "obstacles": _both_ways(monkeypatch, following, "obstacles", following, ("_obstacle_cache",)),
         "crossings": _both_ways(monkeypatch, following, "occupied_crossings", pedestrians),
+        "pedestrians": _both_ways(monkeypatch, model, "pedestrian_starts", pedestrians, ("ped_walking",)),
         "curve_speed": _both_ways(monkeypatch, lanes.TrafficMap, "curve_speed", lanes),
         "poses": _both_ways(monkeypatch, model.Traffic, "_vehicle_poses", model),
         "starts": _both_ways(monkeypatch, model.Traffic, "_path_starts", model),
@@ -175,9 +177,12 @@ def test_kernels_give_the_numpy_numbers_at_every_decision(monkeypatch, domain, t
         assert len(bookkeeping["finish"]) >= 40
     if domain == "roundabout":  # random lane changes
         assert len(bookkeeping["candidates"]) >= 40 and any(len(rows) for rows in bookkeeping["candidates"])
+    if domain == "roundabout" or task == "lane_change":  # room in the target lane, or not; someone behind, or not
+        assert {(room, behind >= 0) for room, behind, _ in bookkeeping["room"]} >= {(True, True), (False, False)}
     assert any(bookkeeping["spawn"]) and len(bookkeeping["poses"]) >= 1 and len(bookkeeping["starts"]) >= 1
     if domain == "roundabout":
         assert len(bookkeeping["crossings"]) >= 40 and any(c.any() for c in bookkeeping["crossings"])
+        assert len(bookkeeping["pedestrians"]) >= 40
     if domain == "urban":
         assert len(changes) >= 40 and len(successors) >= 5  # the signals at every decision, paths that go on
     if task == "lane_change":
@@ -292,11 +297,15 @@ def test_bookkeeping_kernels_agree_on_random_states(monkeypatch):
     rng = np.random.default_rng(5)
     for name in ("urban/concatenated", "urban/lane_change", "roundabout/d210"):
         for t in _random_states(name, 150, seed=1):
-            saved = _snapshot(t, (*VEHICLE_STATE, "_current_pos", "_current_yaw", "_current_speed"))
+            saved = _snapshot(t, (*VEHICLE_STATE, "_current_pos", "_current_yaw", "_current_speed", "ped_walking",
+                                  "ped_wait"))
             t._obstacle_cache = None
             following.obstacles(t)
             if t.np_:
                 following.occupied_crossings(t)
+                t.ped_walking = rng.random(t.np_) < 0.3
+                t.ped_wait = rng.choice([-1.0, 0.0, 2.0], t.np_)
+                model.pedestrian_starts(t, t._context())
             lane0 = np.maximum(t.path[:, 0], 0)
             t.map.curve_speed(lane0, t.s * rng.uniform(-0.2, 1.5, t.nv))
             t._vehicle_poses(np.zeros((1, t.nv)))
@@ -318,7 +327,8 @@ def test_bookkeeping_kernels_agree_on_random_states(monkeypatch):
             model.lane_changes(t)
             _restore(t, saved)
     assert all(len(checked[name]) >= 450 for name in ("advance", "spawn", "lane_changes", "curve_speed"))
-    assert sum(checked["spawn"]) >= 20 and len(checked["crossings"]) >= 150 and len(checked["candidates"]) >= 150
+    assert sum(checked["spawn"]) >= 20
+    assert all(len(checked[name]) >= 150 for name in ("crossings", "pedestrians", "candidates", "centre"))
 
 
 @pytest.mark.parametrize("road_map", [roads.concatenated().road_map, roads.roundabout()], ids=["urban", "roundabout"])

@@ -146,25 +146,14 @@ def _change(t: Traffic, row: int, side: int, lane0: np.ndarray, right: np.ndarra
     if m.length[target] - s_new + m.length[after] < cfg.lane_change_length and m.in_junction[beyond].any():
         return
     ctx = t._context()
-    s, v, length, offset = ctx["s"], ctx["v"], ctx["length"], ctx["offset"]
-    # Every other vehicle's coordinate along the target lane (via its own path), if it passes there,
-    # or beyond its end along the lane that follows it (on it or coming to it from another lane).
-    coord = np.where(np.isfinite(offset[:, after]), m.length[target] + s - offset[:, after], np.nan)
-    leaving = np.isin(ctx["lane"], m.successors[target, : m.n_successors[target]])  # e.g. just exited
-    coord = np.where(leaving, m.length[target] + s, coord)
-    coord = np.where(np.isfinite(offset[:, target]), s - offset[:, target], coord)
-    coord[row] = np.nan
-    gap_ahead = coord - s_new - (length + t.length[row]) / 2
-    gap_behind = s_new - coord - (length + t.length[row]) / 2
-    ahead, behind = coord >= s_new, coord < s_new
-    if np.any(ahead & (gap_ahead < cfg.min_gap + t.v[row] * 0.8)):
-        return
-    if np.any(behind & (gap_behind < cfg.min_gap + v * 1.2 + 2.0)):
+    room, behind, gap_behind = _room(t, row, s_new, target, after, ctx)
+    if not room:
         return
     if t.ego is not None and np.hypot(*(t._current_pos[t.vehicle_slots[row], :2]
                                            - (t.ego.x, t.ego.y))) < 12.0:
         return
-    if cfg.lane_changes == "intention" and behind.any() and not _safe_for_follower(t, row, behind, gap_behind, v):
+    if (cfg.lane_changes == "intention" and behind >= 0
+            and not _safe_for_follower(t, row, behind, gap_behind, ctx["v"][behind])):
         return
     shift = m.width[lane0[row]] * (1.0 if side == 0 else -1.0)  # the old centre seen from the new lane
     sm, _ = smoothstep(t.lc_dist[row] / cfg.lane_change_length)
@@ -179,15 +168,44 @@ def _change(t: Traffic, row: int, side: int, lane0: np.ndarray, right: np.ndarra
     t.stats["lane_changes"] += 1
 
 
-def _safe_for_follower(t: Traffic, row: int, behind: np.ndarray, gap_behind: np.ndarray, v: np.ndarray) -> bool:
-    """MOBIL's safety criterion: the nearest agent behind in the target lane (mask `behind` over the agents),
-    with the changer as its new leader, needs an IDM deceleration of at most `safe_decel` (the ego counts
-    with `EGO_IDM`'s parameters)."""
-    cfg = t.config
+def _room(t: Traffic, row: int, s_new: float, target: int, after: int, ctx: dict) -> tuple[bool, int, float]:
+    """Whether the target lane has room for vehicle `row` at s_new [m] (gaps to the agents ahead and behind it
+    along `target` and the lane `after` it), the nearest agent behind it there (-1: none) and the gap [m] to
+    it (`state_kernels.lane_change_room` with numba: the same)."""
+    m, cfg = t.map, t.config
+    s, v, length, offset = ctx["s"], ctx["v"], ctx["length"], ctx["offset"]
+    if KERNELS:
+        return state_kernels.lane_change_room(row, s_new, target, after, ctx["lane"], s, v, length, offset,
+                                              m.successors, m.n_successors, m.length, t.length[row], t.v[row],
+                                              cfg.min_gap)
+    # Every other vehicle's coordinate along the target lane (via its own path), if it passes there,
+    # or beyond its end along the lane that follows it (on it or coming to it from another lane).
+    coord = np.where(np.isfinite(offset[:, after]), m.length[target] + s - offset[:, after], np.nan)
+    leaving = np.isin(ctx["lane"], m.successors[target, : m.n_successors[target]])  # e.g. just exited
+    coord = np.where(leaving, m.length[target] + s, coord)
+    coord = np.where(np.isfinite(offset[:, target]), s - offset[:, target], coord)
+    coord[row] = np.nan
+    gap_ahead = coord - s_new - (length + t.length[row]) / 2
+    gap_behind = s_new - coord - (length + t.length[row]) / 2
+    ahead, behind = coord >= s_new, coord < s_new
+    if np.any(ahead & (gap_ahead < cfg.min_gap + t.v[row] * 0.8)):
+        return False, -1, np.inf
+    if np.any(behind & (gap_behind < cfg.min_gap + v * 1.2 + 2.0)):
+        return False, -1, np.inf
+    if not behind.any():
+        return True, -1, np.inf
     candidates = np.flatnonzero(behind)
     j = int(candidates[np.argmin(gap_behind[candidates])])
+    return True, j, gap_behind[j]
+
+
+def _safe_for_follower(t: Traffic, row: int, j: int, gap: float, vf: float) -> bool:
+    """MOBIL's safety criterion: the nearest agent `j` behind in the target lane (gap [m], speed vf [m/s]), with
+    the changer as its new leader, needs an IDM deceleration of at most `safe_decel` (the ego counts with
+    `EGO_IDM`'s parameters)."""
+    cfg = t.config
     a, b, headway = (t.a_max[j], t.b_comf[j], t.headway[j]) if j < t.nv else EGO_IDM
-    vf, vc = v[j], t.v[row]
+    vc = t.v[row]
     s_star = cfg.min_gap + max(0.0, vf * headway + vf * (vf - vc) / (2.0 * np.sqrt(a * b)))
-    decel = a * ((s_star / max(gap_behind[j], 0.05)) ** 2 - 1.0)
+    decel = a * ((s_star / max(gap, 0.05)) ** 2 - 1.0)
     return bool(decel <= cfg.safe_decel)

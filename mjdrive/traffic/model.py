@@ -227,14 +227,17 @@ class Traffic:
         """A uniformly random successor of each lane (-1 for a dead end or -1); with urban rules, one that
         honours the intentions of vehicles `rows` (whose paths `lane` belongs to)."""
         m = self.map
-        if self.urban and rows is not None and len(rows) and KERNELS:  # the same in one compiled pass
+        intended = self.urban and rows is not None and len(rows)
+        if KERNELS and intended:  # the same in one compiled pass
             roles = self.roles
             return kernels.choose_successors(
                 rows, lane, self.rng.random(len(lane)), m.successors, roles.turn, roles.ring, roles.ring_exit,
                 self.intention, self.ring_passed, int(self.ego_exit), CROSSROAD, ROUNDABOUT, BEFORE, AFTER)
+        if KERNELS:
+            return state_kernels.random_successors(lane, self.rng.random(len(lane)), m.successors, m.n_successors)
         valid = lane >= 0
         lane0 = np.maximum(lane, 0)
-        if self.urban and rows is not None and len(rows):
+        if intended:
             allowed = successor_preference(self, rows, lane)  # (K, W)
             count = allowed.sum(axis=1) * valid
             pick = np.floor(self.rng.random(len(lane)) * np.maximum(count, 1)).astype(np.int64)

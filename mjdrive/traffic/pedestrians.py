@@ -29,8 +29,16 @@ def commit_pedestrians(t: Traffic, t_end: float) -> None:
 
 
 def pedestrian_starts(t: Traffic, ctx: dict) -> None:
-    """Waiting pedestrians whose wait is over cross when no vehicle could fail to stop before them."""
+    """Waiting pedestrians whose wait is over cross when no vehicle could fail to stop before them
+    (`state_kernels.pedestrian_starts` with numba: the same)."""
     m = t.map
+    if KERNELS:
+        ego = t.ego
+        state_kernels.pedestrian_starts(
+            t.ped_walking, t.ped_wait, t.ped_cw, ctx["offset"], ctx["s"], ctx["v"], ctx["length"], t._b_agents,
+            m.cross_lane, m.cross_s, m.cross_cw, m.cw_centre, ego is not None, ego.x if ego is not None else 0.0,
+            ego.y if ego is not None else 0.0, 7.0 + 3.0 * max(ego.speed, 0.0) if ego is not None else 0.0)
+        return
     ready = ~t.ped_walking & (t.ped_wait <= 0.0)
     if not ready.any():
         return

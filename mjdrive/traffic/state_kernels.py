@@ -182,3 +182,77 @@ def place_pedestrians(ped_u, ped_dir, ped_speed, walking, end, centre, along, si
             out_pos[i, slot, 2] = 0.0
             out_yaw[i, slot] = heading[p] + (ped_dir[p] < 0) * np.pi
             out_speed[i, slot] = ped_speed[p] if walking[p] and abs(u) < end[p] else 0.0
+
+
+@_jit
+def pedestrian_starts(walking, wait, ped_cw, offset, s, v, length, b_agents, cross_lane, cross_s, cross_cw, cw_centre,
+                      has_ego, ego_x, ego_y, ego_reach):
+    """`pedestrians.pedestrian_starts`, in place: waiting pedestrians whose wait is over start walking unless an
+    agent (A,) is on their crosswalk or too close to stop before it (`threatened_crosswalks`), or the ego's centre
+    is within `ego_reach` [m] of the crosswalk's centre."""
+    ready = np.empty(len(walking), dtype=np.bool_)
+    any_ready = False
+    for p in range(len(walking)):
+        ready[p] = not walking[p] and wait[p] <= 0.0
+        any_ready |= ready[p]
+    if not any_ready:
+        return
+    unsafe = np.zeros(len(cw_centre), dtype=np.bool_)
+    for a in range(len(s)):
+        stopping = v[a] * v[a] / (2 * b_agents[a]) + v[a] + 1.0
+        for k in range(len(cross_lane)):
+            base = offset[a, cross_lane[k]]
+            front = base + cross_s[k, 0] - (s[a] + length[a] / 2)
+            rear_past = base + cross_s[k, 1] - (s[a] - length[a] / 2)
+            if rear_past > 0 and front < stopping:
+                unsafe[cross_cw[k]] = True
+    if has_ego:
+        for c in range(len(cw_centre)):
+            if np.hypot(cw_centre[c, 0] - ego_x, cw_centre[c, 1] - ego_y) < ego_reach:
+                unsafe[c] = True
+    for p in range(len(walking)):
+        if ready[p] and not unsafe[ped_cw[p]]:
+            walking[p] = True
+
+
+@_jit
+def random_successors(lane, u, successors, n_successors):
+    """`Traffic._choose_successor` without urban rules: successor floor(u * count) of each lane (-1 for a dead end
+    or -1), with u (K,) uniform draws."""
+    out = np.empty(len(lane), dtype=np.int64)
+    for k in range(len(lane)):
+        lane0 = max(lane[k], 0)
+        count = n_successors[lane0] if lane[k] >= 0 else 0
+        pick = np.int64(np.floor(u[k] * max(count, 1)))
+        out[k] = successors[lane0, min(pick, successors.shape[1] - 1)] if count > 0 else -1
+    return out
+
+
+@_jit
+def lane_change_room(row, s_new, target, after, lane_a, s_a, v_a, len_a, offset_a, successors, n_successors,
+                     lane_length, length_row, v_row, min_gap):
+    """`lane_changes._room`: whether lane `target` has room for vehicle `row` at s_new [m] (every other agent's
+    coordinate along it, via its path, or beyond its end along `after`), the nearest agent behind (-1: none)
+    and the gap [m] to it (inf if none)."""
+    len_target = lane_length[target]
+    nearest, nearest_gap = -1, np.inf
+    for a in range(len(s_a)):
+        off_after, off_target = offset_a[a, after], offset_a[a, target]
+        coord = len_target + s_a[a] - off_after if np.isfinite(off_after) else np.nan
+        for j in range(n_successors[target]):
+            if lane_a[a] == successors[target, j]:  # e.g. just exited
+                coord = len_target + s_a[a]
+        if np.isfinite(off_target):
+            coord = s_a[a] - off_target
+        if a == row:
+            coord = np.nan
+        half = (len_a[a] + length_row) / 2
+        if coord >= s_new and coord - s_new - half < min_gap + v_row * 0.8:
+            return False, -1, np.inf
+        if coord < s_new:
+            gap = s_new - coord - half
+            if gap < min_gap + v_a[a] * 1.2 + 2.0:
+                return False, -1, np.inf
+            if gap < nearest_gap or nearest < 0:
+                nearest, nearest_gap = a, gap
+    return True, nearest, nearest_gap
