@@ -134,6 +134,7 @@ def _checked_bookkeeping(monkeypatch) -> dict[str, list]:
     obstacles, occupied crossings, curve speeds, vehicle poses and path starts, with the state they leave."""
     return {
         "advance": _both_ways(monkeypatch, model.Traffic, "_advance_lanes", model, VEHICLE_STATE),
+        "waiting": _both_ways(monkeypatch, model.Traffic, "_count_waiting", model, ("stopped_time",)),
         "spawn": _both_ways(monkeypatch, model, "spawn", spawning, VEHICLE_STATE),
         "lane_changes": _both_ways(monkeypatch, model, "lane_changes", lane_changes, VEHICLE_STATE),
         "options": _both_ways(monkeypatch, lane_changes, "_options", lane_changes),
@@ -174,7 +175,7 @@ def test_kernels_give_the_numpy_numbers_at_every_decision(monkeypatch, domain, t
     for name in ("advance", "spawn", "lane_changes", "options", "obstacles", "curve_speed"):
         assert len(bookkeeping[name]) >= 40, name
     if domain == "urban":
-        assert len(bookkeeping["finish"]) >= 40
+        assert len(bookkeeping["finish"]) >= 40 and len(bookkeeping["waiting"]) >= 40
     if domain == "roundabout":  # random lane changes
         assert len(bookkeeping["candidates"]) >= 40 and any(len(rows) for rows in bookkeeping["candidates"])
     if domain == "roundabout" or task == "lane_change":  # room in the target lane, or not; someone behind, or not
@@ -323,6 +324,8 @@ def test_bookkeeping_kernels_agree_on_random_states(monkeypatch):
             _restore(t, saved)
             t.s = t.s + rng.choice([0.0, 0.0, 30.0, 80.0], t.nv)  # past the lane's end, or the next one's
             t._advance_lanes()
+            if t.urban:
+                t._count_waiting()
             model.spawn(t)
             model.lane_changes(t)
             _restore(t, saved)

@@ -22,8 +22,8 @@ from mjdrive.traffic.conflicts import (
     TURN_WAIT,
     ApproachTable,
     conflict_columns,
-    courteous_agents,
 )
+from mjdrive.traffic.intentions import MERGE, YIELD
 from mjdrive.traffic.kernels import KERNELS
 from mjdrive.traffic.merges import merge_conflicts
 from mjdrive.traffic.pedestrians import occupied_crossings
@@ -40,7 +40,7 @@ def follower_table(t: Traffic, ctx: dict) -> dict:
             "v": t.v, "v0": t.v0, "length": t.length, "width": t.width, "a": t.a_max,
             "b": t.b_comf, "T": t.headway, "xy": t._current_pos[vs, :2],
             "yaw": t._current_yaw[vs], "accept_gap": t.config.accept_gap,
-            "courteous": courteous_agents(t, ctx)[:nv]}
+            "courteous": t.intention[:, MERGE] == YIELD}  # `courteous_agents`' vehicle rows
 
 
 def accelerations(t: Traffic, f: dict, ctx: dict) -> np.ndarray:
@@ -54,7 +54,8 @@ def accelerations(t: Traffic, f: dict, ctx: dict) -> np.ndarray:
     m = t.map
     lane0 = np.maximum(f["path"][:, 0], 0)
     vcurve, kappa = m.curve_speed(lane0, f["s"])
-    den = 2.0 * np.sqrt(f["a"] * f["b"])  # IDM's 2 sqrt(a b) [m/s^2]
+    own = f["a"] is t.a_max and f["b"] is t.b_comf  # the vehicles' own IDM parameters: 2 sqrt(a b) computed once
+    den = t._den if own else 2.0 * np.sqrt(f["a"] * f["b"])  # IDM's 2 sqrt(a b) [m/s^2]
     summary = gap_summary_kernel if KERNELS else gap_summary
     lead_gap, interaction, room, to_give_way = summary(t, f, ctx, kappa, den)
     if len(f["rows"]) == t.nv:
@@ -177,12 +178,6 @@ def gap_summary_kernel(t: Traffic, f: dict, ctx: dict, kappa: np.ndarray, den: n
     conflict, committed = _merge_state(t, ctx, f["accept_gap"]) if n_y else (_NO_BOOL, _NO_BOOL)
     table = t.approaches if t.approaches is not None and len(t.approaches) else _NO_APPROACHES
     urban = bool(t.urban)
-    if len(table):
-        waited_all = t._waited_all  # [s] (A,) the ego (last) never waits
-        waited_all[: t.nv] = t.stopped_time
-        courteous_a = courteous_agents(t, ctx)
-    else:
-        waited_all, courteous_a = np.zeros(len(ctx["s"])), np.zeros(len(ctx["s"]), dtype=bool)
     yaw, c = f["yaw"], np.ascontiguousarray  # the kernel is compiled for C-contiguous arrays
     return kernels.gap_summary(
         f["rows"], c(f["path"]), c(f["offset"]), f["s"], f["v"], f["length"], f["width"], f["T"], den,
@@ -194,7 +189,8 @@ def gap_summary_kernel(t: Traffic, f: dict, ctx: dict, kappa: np.ndarray, den: n
         m.ending, m.length,
         table.lane, table.s_in, table.s_out, table.other, table.o_in, table.o_out, table.yields, table.tie,
         table.timed, table.merge, table.stop, table.courtesy, c(table.point), table.partner,
-        waited_all, courteous_a, t.nv, t.active, t.lc_dist, cfg.lane_change_length, t.vehicle_slots, c(t._current_pos),
+        t.stopped_time, t.intention, MERGE, YIELD, t.nv,
+        t.active, t.lc_dist, cfg.lane_change_length, t.vehicle_slots, c(t._current_pos),
         cfg.min_gap, cfg.stop_gap, cfg.max_decel, cfg.corridor_range, cfg.corridor_margin, cfg.crosswalk_margin,
         cfg.merge_clearance, cfg.merge_speed, cfg.critical_gap_crossing, cfg.impatience, cfg.critical_gap_merge,
         cfg.courtesy_range, urban,

@@ -67,7 +67,9 @@ def gap_summary(
     # conflict-zone approaches (R,) (urban), empty elsewhere
     ap_lane, ap_s_in, ap_s_out, ap_other, ap_o_in, ap_o_out, ap_yields, ap_tie, ap_timed, ap_merge, ap_stop,
     ap_courtesy, ap_point, ap_partner,
-    waited_all, courteous_a, ego_row,
+    # the vehicles' waiting times [s] (NV,) and intentions (NV, 4): courteous at merges where column `merge_column`
+    # holds `yield_code` (the ego, row NV, never waits and is never courteous)
+    stopped_time, intention, merge_column, yield_code, ego_row,
     # vehicles changing lane (NV,): active and lc_dist [m] below lane_change_length; their slots' poses (N, 3)
     active_v, lc_dist, lane_change_length, vehicle_slots, slot_pos,
     # scalars: config
@@ -87,6 +89,11 @@ def gap_summary(
     room = np.full(n_f, INF)
     to_give_way = np.full(n_f, INF)
     two_b = 2 * max_decel
+    waited_all = np.zeros(n_a)  # [s]
+    courteous_a = np.zeros(n_a, dtype=np.bool_)
+    for a in range(min(n_a, len(stopped_time))):
+        waited_all[a] = stopped_time[a]
+        courteous_a[a] = intention[a, merge_column] == yield_code
 
     # --- per agent and approach (urban): agents on the zone's other lane (the rest never conflict there) ----
     # (written, and read, only for the agents on each approach's other lane)
@@ -488,11 +495,13 @@ def place_vehicles(x, y, sin_h, cos_h, d, yaw, v, accel, t_plan, active, hidden_
 
 
 @_jit
-def intended_lane_change(wish, lane0, left, right, near_merge, ending, n_successors, priority, active, lc_dist,
-                         s, lc_signal, lc_changing, xy, points, now, lane_change_length, zone_distance,
-                         signal_time, left_code, right_code):
+def intended_lane_change(intention, column, lane0, left, right, near_merge, ending, n_successors, priority, active,
+                         lc_dist, s, lc_signal, lc_changing, pos, vehicle_slots, points, now, lane_change_length,
+                         zone_distance, signal_time, left_code, right_code):
     """`lane_changes._intended`: update the signals `lc_signal` [s] (in place) and return the (row, side) of
-    the vehicle that has signalled longest for at least `signal_time` (side 0: right, 1: left), or (-1, -1)."""
+    the vehicle that has signalled longest for at least `signal_time` (side 0: right, 1: left), or (-1, -1).
+    Wishes: intention[:, column]; positions: pos (N, 3) [m] of the vehicles' slots."""
+    wish = intention[:, column]
     best_row, best_signal = -1, INF
     for n in range(len(wish)):
         w = wish[n]
@@ -506,7 +515,8 @@ def intended_lane_change(wish, lane0, left, right, near_merge, ending, n_success
         if able and len(points):  # not across a conflict zone: the move takes a while
             nearest = INF
             for r in range(len(points)):
-                nearest = _minimum(nearest, np.hypot(xy[n, 0] - points[r, 0], xy[n, 1] - points[r, 1]))
+                slot = vehicle_slots[n]
+                nearest = _minimum(nearest, np.hypot(pos[slot, 0] - points[r, 0], pos[slot, 1] - points[r, 1]))
             able = nearest > zone_distance
         if able and lc_signal[n] < 0:
             lc_signal[n] = now

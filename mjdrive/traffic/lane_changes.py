@@ -88,10 +88,9 @@ def _intended(t: Traffic, right: np.ndarray, left: np.ndarray, near_merge: np.nd
         points = t.approaches.point if t.approaches is not None else np.zeros((0, 2))
         signal = t.lc_signal.copy()
         row, side = kernels.intended_lane_change(
-            np.ascontiguousarray(t.intention[:, LANE_CHANGE]), np.maximum(t.path[:, 0], 0) if lane0 is None else lane0,
-            left, right, near_merge,
+            t.intention, LANE_CHANGE, np.maximum(t.path[:, 0], 0) if lane0 is None else lane0, left, right, near_merge,
             t.map.ending, t.map.n_successors, t.roles.priority, t.active, t.lc_dist, t.s, signal, t.lc_changing,
-            np.ascontiguousarray(t._current_pos[t.vehicle_slots, :2]), np.ascontiguousarray(points), t.time,
+            t._current_pos, t.vehicle_slots, np.ascontiguousarray(points), t.time,
             cfg.lane_change_length, ZONE_CLEARANCE + cfg.lane_change_length, cfg.signal_time - 1e-9, LEFT, RIGHT)
         t.lc_signal = signal
         return None if row < 0 else (row, side)

@@ -163,7 +163,7 @@ class Traffic:
         self.ego: EgoState | None = None
         self._obstacle_cache = None
         self._ctx_s, self._ctx_v, self._ctx_len = np.zeros(self.nv + 1), np.zeros(self.nv + 1), np.zeros(self.nv + 1)
-        self._waited_all = np.zeros(self.nv + 1)  # [s] waiting times of the agents (the ego last, 0), kernels'
+        self._den = 2.0 * np.sqrt(self.a_max * self.b_comf)  # [m/s^2] IDM's 2 sqrt(a b) (following.accelerations)
         self._b_agents = np.append(self.b_comf, 3.0)  # [m/s^2] comfortable deceleration, the ego last
         self._row_base = np.arange(self.nv) * PATH
         self._slot_row = np.full(self.n, -1, dtype=np.int64)  # vehicle row of each slot (-1: pedestrian)
@@ -405,9 +405,7 @@ class Traffic:
         """New accelerations, lane changes, spawns and pedestrian starts; then the plan of poses."""
         self._obstacle_cache = None
         if self.urban:
-            # waiting time: creeping up to a give-way line (slower than WAITING_SPEED) does not reset it
-            self.stopped_time = np.where(self.active & (self.v < WAITING_SPEED),
-                                         self.stopped_time + self.config.decision_period, 0.0)
+            self._count_waiting()
         self._advance_lanes()
         if spawn(self):
             self._refresh_vehicle_poses()
@@ -417,6 +415,16 @@ class Traffic:
             pedestrian_starts(self, ctx)
         self.accel = np.where(self.active, accelerations(self, follower_table(self, ctx), ctx), 0.0)
         self._plan = self._make_plan(ctx["start"][: self.nv])
+
+    def _count_waiting(self) -> None:
+        """Waiting times [s] one decision period on (`state_kernels.waiting_times` with numba: the same)."""
+        if KERNELS:
+            self.stopped_time = state_kernels.waiting_times(self.stopped_time, self.active, self.v,
+                                                            self.config.decision_period, WAITING_SPEED)
+            return
+        # creeping up to a give-way line (slower than WAITING_SPEED) does not reset it
+        self.stopped_time = np.where(self.active & (self.v < WAITING_SPEED),
+                                     self.stopped_time + self.config.decision_period, 0.0)
 
     def _advance_lanes(self) -> None:
         """Vehicles past the end of their lane move on along their path (or leave the map at dead ends)."""
@@ -481,10 +489,10 @@ class Traffic:
         """Poses of every slot at the substeps of the next decision period (`start`: distance (NV, PATH) [m]
         to the start of each path lane, if known)."""
         t = self._t_plan[:, None]  # (S, 1)
-        v, a = self.v[None], self.accel[None]
         if KERNELS:  # the same numbers in one compiled pass
             ds = kernels.plan_distances(self.v, self.accel, self._t_plan)
         else:
+            v, a = self.v[None], self.accel[None]
             stopped = (a < 0) & (v + a * t < 0)
             ds = np.where(stopped, v * v / np.maximum(-2 * a, 1e-9), v * t + 0.5 * a * t * t)  # (S, NV)
         x, y, h = self._centre_poses(ds, start)

@@ -256,3 +256,13 @@ def lane_change_room(row, s_new, target, after, lane_a, s_a, v_a, len_a, offset_
             if gap < nearest_gap or nearest < 0:
                 nearest, nearest_gap = a, gap
     return True, nearest, nearest_gap
+
+
+@_jit
+def waiting_times(stopped_time, active, v, period, waiting_speed):
+    """`Traffic._count_waiting`: each vehicle's waiting time [s] after a decision period [s] (reset when it is
+    inactive or not slower than `waiting_speed` [m/s])."""
+    out = np.empty(len(v))
+    for r in range(len(v)):
+        out[r] = stopped_time[r] + period if active[r] and v[r] < waiting_speed else 0.0
+    return out
