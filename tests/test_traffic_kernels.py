@@ -136,6 +136,7 @@ def _checked_bookkeeping(monkeypatch) -> dict[str, list]:
         "advance": _both_ways(monkeypatch, model.Traffic, "_advance_lanes", model, VEHICLE_STATE),
         "waiting": _both_ways(monkeypatch, model.Traffic, "_count_waiting", model, ("stopped_time",)),
         "spawn": _both_ways(monkeypatch, model, "spawn", spawning, VEHICLE_STATE),
+        "activate": _both_ways(monkeypatch, spawning, "activate", spawning, VEHICLE_STATE),
         "lane_changes": _both_ways(monkeypatch, model, "lane_changes", lane_changes, VEHICLE_STATE),
         "options": _both_ways(monkeypatch, lane_changes, "_options", lane_changes),
         "finish": _both_ways(monkeypatch, lane_changes, "_finish_intended", lane_changes,

@@ -33,11 +33,13 @@ def compile_kernels() -> float:
         traffic.reset(np.random.default_rng(0), density=0.5)
         for _ in range(3):
             traffic.advance(traffic.config.decision_period)
+        traffic._choose_successor(traffic.path[:, 0].copy())  # a successor without intentions (a lane change's)
     return time.perf_counter() - start
 
 
 def uncompiled() -> list[str]:
-    """The traffic's kernels this process has not compiled (or loaded) yet: none after `compile_kernels`."""
+    """The traffic's kernels (those called from Python) this process has not compiled (or loaded) yet: none after
+    `compile_kernels`."""
     return [f"{module.__name__}.{name}" for module in (kernels, state_kernels) for name, fn in vars(module).items()
             if hasattr(fn, "signatures") and not name.startswith("_") and not fn.signatures]
 

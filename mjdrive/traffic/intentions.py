@@ -96,6 +96,20 @@ def intention_cdfs(cfg) -> tuple[tuple[int, np.ndarray], ...]:
     return tuple(out)
 
 
+@functools.lru_cache(maxsize=32)
+def intention_table(cfg) -> tuple[np.ndarray, np.ndarray]:
+    """`intention_cdfs` as arrays for kernels: the cumulative distributions (I, W), padded with inf (never <= a
+    draw), and their columns of Traffic.intention (I,)."""
+    cdfs = intention_cdfs(cfg)
+    table = np.full((len(cdfs), max(len(cdf) for _, cdf in cdfs)), np.inf)
+    for i, (_, cdf) in enumerate(cdfs):
+        table[i, : len(cdf)] = cdf
+    table.flags.writeable = False
+    columns = np.array([column for column, _ in cdfs], dtype=np.int64)
+    columns.flags.writeable = False
+    return table, columns
+
+
 def successor_preference(t: Traffic, rows: np.ndarray, lane: np.ndarray) -> np.ndarray:
     """(K, W) bool: the successors of `lane` (rows' path lanes) that honour the rows' intentions: the
     connector of their turn at a junction; at a ring exit, leave before the ego's exit (BEFORE) or only

@@ -602,12 +602,17 @@ def choose_successors(rows, lane, u, successors, turn, ring, ring_exit, intentio
 
 
 @_jit
-def path_context(vehicle_path, active, ego_path, lane_length, n_lanes):
+def path_context(vehicle_path, active, ego_path, lane_length, n_lanes, s, v, length, ego_s, ego_v, ego_length):
     """`Traffic._context`'s lane-graph tables: the paths (A, PATH) of the vehicles (-1 rows for inactive ones)
     and the ego (last row, `ego_path`), the distance (A, PATH) [m] from each agent's lane start to the start
     of each lane on its path, and `offset` (A, n_lanes + 1) [m] to the start of every lane (inf off the
-    path; the first occurrence on a path wins; column n_lanes collects the -1 lanes and is inf)."""
+    path; the first occurrence on a path wins; column n_lanes collects the -1 lanes and is inf); and the agents'
+    s [m], speed [m/s] and length [m] (A,): the vehicles', then the ego's."""
     nv, n_p = vehicle_path.shape
+    s_a, v_a, length_a = np.empty(nv + 1), np.empty(nv + 1), np.empty(nv + 1)
+    for r in range(nv):
+        s_a[r], v_a[r], length_a[r] = s[r], v[r], length[r]
+    s_a[nv], v_a[nv], length_a[nv] = ego_s, ego_v, ego_length
     path = np.full((nv + 1, n_p), -1, dtype=np.int64)
     for r in range(nv):
         if active[r]:
@@ -626,7 +631,7 @@ def path_context(vehicle_path, active, ego_path, lane_length, n_lanes):
             lane = path[r, j]
             offset[r, lane if lane >= 0 else n_lanes] = start[r, j]
         offset[r, n_lanes] = INF
-    return path, start, offset
+    return path, start, offset, s_a, v_a, length_a
 
 
 @_jit

@@ -104,6 +104,8 @@ class Traffic:
         self.urban = conflicts is not None
         self.zones = conflicts
         self.roles = LaneRoles.of(self.map.road_map) if self.urban else None
+        no_roles = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool), np.zeros(0, dtype=bool))
+        self._roles_arrays = (self.roles.turn, self.roles.ring, self.roles.ring_exit) if self.urban else no_roles
         self.approaches = (ApproachTable.from_zones(conflicts, self.map.road_map, self.roles.ring) if self.urban
                            else None)
         self.ego_exit = -1  # the ego's ring exit lane (roundabout intentions), see `set_ego_route`
@@ -429,12 +431,15 @@ class Traffic:
     def _advance_lanes(self) -> None:
         """Vehicles past the end of their lane move on along their path (or leave the map at dead ends)."""
         if KERNELS:  # the same, a round per compiled pass (the successors' draws stay here)
-            while True:
-                rows, gone = state_kernels.lanes_passed(self.s, self.path, self.active, self.v, self.map.length)
-                if not len(rows):
-                    return
-                self.path[rows, -1] = self._choose_successor(self.path[rows, -2], rows)
+            m = self.map
+            rows, gone = state_kernels.lanes_passed(self.s, self.path, self.active, self.v, m.length)
+            while len(rows):
                 self.stats["despawned"] += gone
+                rows, gone = state_kernels.successors_then_lanes_passed(
+                    rows, self.rng.random(len(rows)), self.urban, m.successors, m.n_successors, *self._roles_arrays,
+                    self.intention, self.ring_passed, int(self.ego_exit), CROSSROAD, ROUNDABOUT, BEFORE, AFTER, self.s,
+                    self.path, self.active, self.v, m.length)
+            return
         while True:
             over = self.active & (self.s >= self.map.length[np.maximum(self.path[:, 0], 0)])
             if not over.any():
@@ -455,6 +460,17 @@ class Traffic:
         of each agent's current lane to the start of every lane on its path (inf for lanes off its path),
         so that a point (lane, s) lies offset[:, lane] + s ahead of the start of each agent's lane."""
         ego, nv = self.ego, self.nv
+        if KERNELS:  # the same tables in one compiled pass
+            ego_path, ego_s, ego_v, ego_length = _NO_PATH, 0.0, 0.0, 0.0
+            if ego is not None:
+                ego_v, ego_length = max(ego.speed, 0.0), ego.length
+                if ego.path is not None and len(ego.path) and ego.path[0] >= 0:
+                    ego_path, ego_s = np.asarray(ego.path[:PATH], dtype=np.int64), ego.s
+            path, start, offset, s, v, length = kernels.path_context(
+                self.path, self.active, ego_path, self.map.length, self.map.n_lanes, self.s, self.v, self.length,
+                ego_s, ego_v, ego_length)
+            return {"lane": path[:, 0], "s": s, "v": v, "length": length, "path": path, "start": start,
+                    "offset": offset}
         s, v, length = self._ctx_s, self._ctx_v, self._ctx_len
         s[:nv], v[:nv], length[:nv] = self.s, self.v, self.length
         s[nv] = v[nv] = length[nv] = 0.0
@@ -464,11 +480,6 @@ class Traffic:
             if ego.path is not None and len(ego.path) and ego.path[0] >= 0:
                 ego_path = np.asarray(ego.path[:PATH], dtype=np.int64)
                 s[nv] = ego.s
-        if KERNELS:  # the same tables in one compiled pass
-            path, start, offset = kernels.path_context(self.path, self.active, ego_path, self.map.length,
-                                                       self.map.n_lanes)
-            return {"lane": path[:, 0], "s": s.copy(), "v": v.copy(), "length": length.copy(), "path": path,
-                    "start": start, "offset": offset}
         path = np.full((nv + 1, PATH), -1, dtype=np.int64)
         path[:nv] = self.path
         path[:nv][~self.active] = -1

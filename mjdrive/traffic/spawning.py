@@ -8,8 +8,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mjdrive.traffic import state_kernels
-from mjdrive.traffic.intentions import LANE_CHANGE, draw
+from mjdrive.traffic.intentions import AFTER, BEFORE, CROSSROAD, LANE_CHANGE, ROUNDABOUT, draw, intention_table
 from mjdrive.traffic.kernels import KERNELS
+from mjdrive.traffic.params import PATH
 
 if TYPE_CHECKING:
     from mjdrive.traffic.model import Traffic
@@ -29,9 +30,10 @@ class SpawnPoints:
 def spawn(t: Traffic) -> bool:
     """Inactive vehicles re-enter at a random clear source or spawn point (at most one per place per
     decision)."""
-    m, cfg = t.map, t.config
-    points = t.spawn_points
+    cfg = t.config
     lanes, starts, place_xy = _places(t)
+    if KERNELS:
+        return _spawn_compiled(t, lanes, starts, place_xy)
     if t.active.all() or not len(lanes) or not cfg.respawn:
         return False
     idle = np.flatnonzero(~t.active)
@@ -41,13 +43,7 @@ def spawn(t: Traffic) -> bool:
         due = t.intent_rng.random(len(idle)) < cfg.spawn_rate * cfg.decision_period
         if not due.any():
             return False
-    if KERNELS:  # the same places in one compiled pass
-        ego = t.ego
-        clear = state_kernels.spawn_clear(lanes, starts, place_xy, t.active, t.path, t.s, t.length, t._current_pos,
-                                          t.vehicle_slots, bool(t.urban), ego.x if ego is not None else 0.0,
-                                          ego.y if ego is not None else 0.0, ego is not None, cfg.spawn_clear)
-    else:
-        clear = _clear_places(t, lanes, starts, place_xy)
+    clear = _clear_places(t, lanes, starts, place_xy)
     ok = clear[pick] & due
     if not ok.any():
         return False
@@ -55,22 +51,52 @@ def spawn(t: Traffic) -> bool:
     _, first = np.unique(src, return_index=True)
     rows, src = rows[first], src[first]
     activate(t, rows, lanes[src], np.maximum(starts[src], t.length[rows] / 2 + 0.5))
+    _at_points(t, rows, src)
+    t.stats["spawned"] += len(rows)
+    return True
+
+
+def _spawn_compiled(t: Traffic, lanes: np.ndarray, starts: np.ndarray, place_xy: np.ndarray) -> bool:
+    """`spawn` with the choice of places in a kernel (`state_kernels.spawn_places`): the same draws, the same
+    vehicles at the same places."""
+    cfg = t.config
+    idle = state_kernels.idle_rows(t.active)
+    if not len(idle) or not len(lanes) or not cfg.respawn:
+        return False
+    u_pick = t.rng.random(len(idle))
+    timed = bool(t.urban and cfg.spawn_rate > 0)  # arrivals at random times
+    u_due = t.intent_rng.random(len(idle)) if timed else u_pick
+    ego = t.ego
+    rows, src, lane, at = state_kernels.spawn_places(
+        idle, u_pick, u_due, timed, cfg.spawn_rate * cfg.decision_period, lanes, starts, place_xy, t.active, t.path,
+        t.s, t.length, t._current_pos, t.vehicle_slots, bool(t.urban), ego.x if ego is not None else 0.0,
+        ego.y if ego is not None else 0.0, ego is not None, cfg.spawn_clear)
+    if not len(rows):
+        return False
+    activate(t, rows, lane, at)
+    _at_points(t, rows, src)
+    t.stats["spawned"] += len(rows)
+    return True
+
+
+def _at_points(t: Traffic, rows: np.ndarray, src: np.ndarray) -> None:
+    """Vehicles `rows` that entered at spawn points (places `src` past the map's sources): the point's speed range
+    and lane-change intention."""
+    m, points = t.map, t.spawn_points
     planned = src >= len(m.sources)
-    if planned.any():  # the spawn point's speed range and lane-change intention
+    if planned.any():
         k = src[planned] - len(m.sources)
         low, high = points.speed[k, 0], points.speed[k, 1]
         t.v0[rows[planned]] = low + (high - low) * t.intent_rng.random(len(k))
         t.v[rows[planned]] = np.minimum(t.v[rows[planned]], t.v0[rows[planned]])
         wish = points.lane_change[k]
         t.intention[rows[planned], LANE_CHANGE] = np.where(wish >= 0, wish, t.intention[rows[planned], LANE_CHANGE])
-    t.stats["spawned"] += len(rows)
-    return True
 
 
 def _clear_places(t: Traffic, lanes: np.ndarray, starts: np.ndarray, place_xy: np.ndarray) -> np.ndarray:
     """(Q,) places with no active vehicle on their lane within `spawn_clear` of them (bumper to place), under
     urban rules none whose centre is that close whatever its lane, and not the ego
-    (`state_kernels.spawn_clear` with numba)."""
+    (`state_kernels._spawn_clear` with numba)."""
     cfg = t.config
     lane = np.where(t.active, t.path[:, 0], -1)
     near_start = (lane[:, None] == lanes[None]) & (np.abs(t.s[:, None] - starts[None]) - t.length[:, None] / 2
@@ -100,10 +126,14 @@ def _places(t: Traffic) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def activate(t: Traffic, rows: np.ndarray, lane: np.ndarray, s: np.ndarray, speed_share=0.8) -> None:
-    """Put vehicles `rows` at (lane, s) with random desired speed and lateral offset."""
+    """Put vehicles `rows` at (lane, s) with random desired speed and lateral offset
+    (`state_kernels.activate_rows` and `activate_speeds` with numba: the same draws and state)."""
     if not len(rows):
         return
     rng = t.rng
+    if KERNELS:
+        _activate_compiled(t, rows, lane, s, speed_share)
+        return
     t.generation[t.vehicle_slots[rows]] += 1
     t.active[rows] = True
     t.path[rows] = -1
@@ -124,3 +154,29 @@ def activate(t: Traffic, rows: np.ndarray, lane: np.ndarray, s: np.ndarray, spee
     t.lc_shift[rows] = 0.0
     t.lc_dist[rows] = 1e9
     t.accel[rows] = 0.0
+
+
+def _activate_compiled(t: Traffic, rows: np.ndarray, lane: np.ndarray, s: np.ndarray, speed_share) -> None:
+    """`activate` in two kernels around the numpy draws, in the numpy code's order: the intentions
+    (`intentions.draw`), the path's successors (`Traffic._fill_path`), desired speeds and lateral offsets."""
+    n = len(rows)
+    lane = np.asarray(lane, dtype=np.int64)
+    cdfs, columns = intention_table(t.config) if t.urban else (_NO_CDFS, _NO_COLUMNS)
+    u_intent = t.intent_rng.random((len(columns), n)) if t.urban else _NO_CDFS
+    u_path = t.rng.random((PATH - 1, n))
+    state_kernels.activate_rows(
+        rows, lane, np.asarray(s, dtype=float), t.vehicle_slots, t.generation, t.active, t.path, t.s, bool(t.urban),
+        u_intent, cdfs, columns, t.intention, t.ring_passed, t.lc_signal, t.lc_changing, u_path, t.map.successors,
+        t.map.n_successors, *t._roles_arrays, int(t.ego_exit), CROSSROAD, ROUNDABOUT, BEFORE, AFTER)
+    low, high = t._speed_range[rows, 0], t._speed_range[rows, 1]
+    if t.urban and t.config.desired_speed is not None:
+        low, high = t.config.desired_speed
+    v0 = t.rng.uniform(low, high, n)
+    d_pref = t.rng.uniform(t._lateral_range[rows, 0], t._lateral_range[rows, 1])
+    share = np.full(n, speed_share) if np.isscalar(speed_share) else np.asarray(speed_share, dtype=float)
+    state_kernels.activate_speeds(rows, lane, v0, d_pref, share, t.map.speed_limit, t.v0, t.v, t.d_pref, t.lc_shift,
+                                  t.lc_dist, t.accel)
+
+
+_NO_CDFS = np.zeros((0, 0))
+_NO_COLUMNS = np.zeros(0, dtype=np.int64)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from mjdrive.compiled import jit as _jit
-from mjdrive.traffic.kernels import _maximum, _minimum
+from mjdrive.traffic.kernels import _maximum, _minimum, choose_successors
 
 
 @_jit
@@ -86,7 +86,7 @@ def random_lane_change_rows(active, right, left, lc_dist, s, lead_gap, near_merg
 
 
 @_jit
-def spawn_clear(lanes, starts, place_xy, active, path, s, length, pos, vehicle_slots, urban, ego_x, ego_y, has_ego,
+def _spawn_clear(lanes, starts, place_xy, active, path, s, length, pos, vehicle_slots, urban, ego_x, ego_y, has_ego,
                 clearance):
     """`spawning.spawn`'s clear places (Q,): no active vehicle on the place's lane within `clearance` [m] of its
     s (bumper to place); under urban rules none whose centre is within it, whatever its lane; and not the ego."""
@@ -266,3 +266,127 @@ def waiting_times(stopped_time, active, v, period, waiting_speed):
     for r in range(len(v)):
         out[r] = stopped_time[r] + period if active[r] and v[r] < waiting_speed else 0.0
     return out
+
+
+@_jit
+def spawn_places(idle, u_pick, u_due, timed, due_below, lanes, starts, place_xy, active, path, s, length, pos,
+                 vehicle_slots, urban, ego_x, ego_y, has_ego, clearance):
+    """`spawning.spawn`'s choice: each idle vehicle (K,) picks place floor(u_pick * Q); under timed arrivals it is
+    due when u_due < due_below; the due ones whose place is clear (`_spawn_clear`) enter there, the first one of
+    each place only. Returns their rows, places, lanes and s [m] (clear of the lane start by half their length),
+    by place."""
+    n_k, n_q = len(idle), len(lanes)
+    pick = np.empty(n_k, dtype=np.int64)
+    due = np.ones(n_k, dtype=np.bool_)
+    any_due = False
+    for k in range(n_k):
+        pick[k] = np.int64(u_pick[k] * n_q)
+        if timed:
+            due[k] = u_due[k] < due_below
+        any_due |= due[k]
+    n = 0
+    rows, src = np.empty(min(n_k, n_q), dtype=np.int64), np.empty(min(n_k, n_q), dtype=np.int64)
+    lane, at = np.empty(min(n_k, n_q), dtype=np.int64), np.empty(min(n_k, n_q))
+    if not any_due:
+        return rows[:0], src[:0], lane[:0], at[:0]
+    clear = _spawn_clear(lanes, starts, place_xy, active, path, s, length, pos, vehicle_slots, urban, ego_x, ego_y,
+                         has_ego, clearance)
+    for q in range(n_q):
+        if not clear[q]:
+            continue
+        for k in range(n_k):
+            if pick[k] == q and due[k]:
+                r = idle[k]
+                rows[n], src[n], lane[n] = r, q, lanes[q]
+                at[n] = _maximum(starts[q], length[r] / 2 + 0.5)
+                n += 1
+                break
+    return rows[:n], src[:n], lane[:n], at[:n]
+
+
+@_jit
+def idle_rows(active):
+    """np.flatnonzero(~active)."""
+    out = np.empty(len(active), dtype=np.int64)
+    n = 0
+    for r in range(len(active)):
+        if not active[r]:
+            out[n] = r
+            n += 1
+    return out[:n]
+
+
+@_jit
+def activate_rows(rows, lane, s, vehicle_slots, generation, active, path, s_state, urban, u_intent, cdfs,
+                  cdf_columns, intention, ring_passed, lc_signal, lc_changing, u_path, successors, n_successors, turn,
+                  ring, ring_exit, ego_exit, crossroad, roundabout, before_code, after_code):
+    """`spawning.activate`'s lane-graph part, in place: vehicles `rows` (K,) enter at (lane, s [m]) (a new
+    generation of their slot), with (urban) intentions drawn from `cdfs` (I, W) (the scenarios' cumulative shares,
+    inf-padded; into intention[:, cdf_columns]) by the uniform draws u_intent (I, K) (`intentions.draw`), signals off,
+    and their paths filled by the draws u_path (PATH - 1, K) as `Traffic._fill_path` fills them."""
+    n_k, n_p = len(rows), path.shape[1]
+    for j in range(n_k):
+        r = rows[j]
+        generation[vehicle_slots[r]] += 1
+        active[r] = True
+        for c in range(n_p):
+            path[r, c] = -1
+        path[r, 0] = lane[j]
+    if urban:
+        for i in range(len(cdf_columns)):
+            for j in range(n_k):
+                c = 0  # cdf.searchsorted(u, side="right")
+                while c < cdfs.shape[1] and cdfs[i, c] <= u_intent[i, j]:
+                    c += 1
+                intention[rows[j], cdf_columns[i]] = c
+        for j in range(n_k):
+            ring_passed[rows[j]] = False
+            lc_signal[rows[j]] = -1.0
+            lc_changing[rows[j]] = False
+    previous = np.empty(n_k, dtype=np.int64)
+    for c in range(1, n_p):
+        for j in range(n_k):
+            previous[j] = path[rows[j], c - 1]
+        if urban:
+            chosen = choose_successors(rows, previous, u_path[c - 1], successors, turn, ring, ring_exit, intention,
+                                       ring_passed, ego_exit, crossroad, roundabout, before_code, after_code)
+        else:
+            chosen = random_successors(previous, u_path[c - 1], successors, n_successors)
+        for j in range(n_k):
+            path[rows[j], c] = chosen[j]
+    for j in range(n_k):
+        s_state[rows[j]] = s[j]
+
+
+@_jit
+def activate_speeds(rows, lane, v0_drawn, d_pref_drawn, share, speed_limit, v0, v, d_pref, lc_shift, lc_dist, accel):
+    """`spawning.activate`'s speeds, in place: vehicles `rows` (K,) get their drawn desired speeds v0 [m/s] and
+    lateral offsets [m], speed share * min(v0, the lane's limit) [m/s], and no lane change under way."""
+    for j in range(len(rows)):
+        r = rows[j]
+        v0[r] = v0_drawn[j]
+        v[r] = _minimum(v0_drawn[j], speed_limit[lane[j]]) * share[j]
+        d_pref[r] = d_pref_drawn[j]
+        lc_shift[r] = 0.0
+        lc_dist[r] = 1e9
+        accel[r] = 0.0
+
+
+@_jit
+def successors_then_lanes_passed(rows, u, urban, successors, n_successors, turn, ring, ring_exit, intention,
+                                 ring_passed, ego_exit, crossroad, roundabout, before_code, after_code, s, path, active,
+                                 v, lane_length):
+    """The end of a round of `Traffic._advance_lanes` and the next round: the vehicles `rows` that moved on draw
+    their path's new last lane with the uniform draws u (K,) (`Traffic._choose_successor`), then `lanes_passed`."""
+    n_p = path.shape[1]
+    previous = np.empty(len(rows), dtype=np.int64)
+    for j in range(len(rows)):
+        previous[j] = path[rows[j], n_p - 2]
+    if urban:
+        chosen = choose_successors(rows, previous, u, successors, turn, ring, ring_exit, intention, ring_passed,
+                                   ego_exit, crossroad, roundabout, before_code, after_code)
+    else:
+        chosen = random_successors(previous, u, successors, n_successors)
+    for j in range(len(rows)):
+        path[rows[j], n_p - 1] = chosen[j]
+    return lanes_passed(s, path, active, v, lane_length)
