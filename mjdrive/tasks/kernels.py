@@ -1,8 +1,9 @@
 """Compiled parts of the tasks' observations (numba, `mjdrive.compiled`): the nearest road users' rows.
 
 Each kernel repeats the numpy code of its task operation for operation (the tasks keep that code, which runs
-without numba; tests/test_task_kernels.py holds the two to the same bits). Sines, cosines and hypot stay in
-numpy, computed by the caller: numpy's vectorised versions may round differently from libm on some CPUs.
+without numba; tests/test_task_kernels.py holds the two to the same bits). Sines and cosines stay in numpy,
+computed by the caller: numpy's vectorised versions may round differently from libm on some CPUs; hypot has no
+vectorised version in numpy (libm's in both).
 """
 
 from __future__ import annotations
@@ -13,26 +14,31 @@ from mjdrive.compiled import jit
 
 
 @jit
-def adversary_rows(out: np.ndarray, dist: np.ndarray, present: np.ndarray, speeds: np.ndarray,
-                   intentions: np.ndarray, column: int, distance_scale: float, speed_scale: float) -> None:
+def adversary_rows(out: np.ndarray, present: np.ndarray, positions: np.ndarray, px: float, py: float,
+                   speeds: np.ndarray, intentions: np.ndarray, column: int, distance_scale: float,
+                   speed_scale: float) -> None:
     """Fill `out` (n, 4) float32 with the urban task's adversary rows of the min(n, P) present road users
-    nearest the relevant point: 1, distance / distance_scale, speed / speed_scale (both capped at 1), and
+    nearest the point (px, py) [m]: 1, distance / distance_scale, speed / speed_scale (both capped at 1), and
     max(intention, 0) / 2 in the scenario's `column` of `intentions` (0 where column < 0: none in this scenario).
 
-    dist (P,) [m] of the present users (slot indices `present` (P,)); speeds (N,) [m/s] and intentions (N, 4) of
-    every slot. The order is numpy's stable argsort of dist."""
-    k = min(out.shape[0], dist.shape[0])
+    present (N,) bool, positions (N, 2) [m], speeds (N,) [m/s] and intentions (N, 4) of every slot. The order is
+    numpy's stable argsort of the distances (np.hypot: libm's, in numpy and in numba alike)."""
+    slots = np.flatnonzero(present)
+    p = slots.shape[0]
+    dist = np.empty(p)
+    for j in range(p):
+        i = slots[j]
+        dist[j] = np.hypot(positions[i, 0] - px, positions[i, 1] - py)
     order = np.argsort(dist, kind="mergesort")  # stable, as numpy's "stable"
-    with_intention = column >= 0
-    for r in range(k):
+    for r in range(min(out.shape[0], p)):
         j = order[r]
-        i = present[j]
+        i = slots[j]
         d = dist[j] / distance_scale
         v = speeds[i] / speed_scale
         out[r, 0] = 1.0
         out[r, 1] = 1.0 if d > 1.0 else d  # np.minimum(., 1.0), NaN kept
         out[r, 2] = 1.0 if v > 1.0 else v
-        if with_intention:
+        if column >= 0:
             out[r, 3] = max(intentions[i, column], 0) / 2.0
 
 

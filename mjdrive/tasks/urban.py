@@ -60,6 +60,7 @@ SUITE = containers.TaggedTasks()
 CONTROL_TIMESTEP = 0.1  # [s] 10 Hz
 SCENARIOS = (FOLLOW, "roundabout", "lane_change", "crossroad", "merge")  # the scenario one-hot, in order
 _SCENARIO_INDEX = {name: i for i, name in enumerate(SCENARIOS)}
+_NO_INTENTIONS = np.zeros((0, len(INTENTION_SCENARIOS)), np.int64)  # the adversary rows' outside intention scenarios
 PIECES = {"roundabout": ("roundabout",), "lane_change": ("road",), "crossroad": ("crossroad",),
           "merge": ("merge",), "concatenated": ("roundabout", "road", "crossroad", "merge")}
 SPEED_SCALE = 15.0  # [m/s] speeds normalised by this (§5.3's top speed)
@@ -241,18 +242,19 @@ class UrbanTask(DrivingTask):
         """(n, 4) the n road users nearest the relevant point: present, distance, speed, intention (in [0, 1])."""
         traffic, n = self.traffic, self.config.adversaries
         out = np.zeros((n, ADVERSARY_COLUMNS), np.float32)
+        point = self.relevant_point()
+        scenario = self.scenario
+        column = INTENTION_SCENARIOS.index(scenario) if scenario in INTENTION_SCENARIOS else None
+        if KERNELS:  # the same rows in one compiled pass
+            kernels.adversary_rows(out, traffic.present, traffic.positions(), float(point[0]), float(point[1]),
+                                   traffic.speeds(), traffic.intentions() if column is not None else _NO_INTENTIONS,
+                                   -1 if column is None else column, DISTANCE_SCALE, SPEED_SCALE)
+            return out
         present = np.flatnonzero(traffic.present)
         if not len(present):
             return out
-        point = self.relevant_point()
         rel = traffic.positions()[present] - point
         dist = np.hypot(rel[:, 0], rel[:, 1])
-        scenario = self.active_scenario()
-        column = INTENTION_SCENARIOS.index(scenario) if scenario in INTENTION_SCENARIOS else None
-        if KERNELS:  # the same rows in one compiled pass
-            kernels.adversary_rows(out, dist, present, traffic.speeds(), traffic.intentions(),
-                                   -1 if column is None else column, DISTANCE_SCALE, SPEED_SCALE)
-            return out
         k = min(n, len(present))
         order = np.argsort(dist, kind="stable")[:k]
         idx = present[order]
