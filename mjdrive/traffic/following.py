@@ -64,10 +64,10 @@ def accelerations(t: Traffic, f: dict, ctx: dict) -> np.ndarray:
         return idm(t, f, ctx, vcurve, interaction, room, to_give_way)
     n_y = len(m.yield_lane) if t.approaches is None else 0
     cfg, v = t.config, f["v"]
-    v0 = kernels.desired_speed(f["path"], f["offset"], f["s"], f["length"], f["v0"], vcurve, to_give_way, m.length,
-                               m.entry_speed, m.speed_limit, m.anticipation, m.yield_lane[:n_y], m.yield_stop[:n_y],
-                               cfg.yield_speed)
-    ratio4 = (v / np.maximum(v0, 0.1)) ** 4  # numpy's power, as in `idm`
+    v0, ratio = kernels.desired_speed(f["path"], f["offset"], f["s"], f["length"], f["v0"], vcurve, to_give_way,
+                                      m.length, m.entry_speed, m.speed_limit, m.anticipation, m.yield_lane[:n_y],
+                                      m.yield_stop[:n_y], cfg.yield_speed, v)
+    ratio4 = ratio**4  # numpy's power of (v / max(v0, 0.1)), as in `idm`
     return kernels.idm_accel(f["a"], v, v0, ratio4, interaction, room, cfg.decision_period, cfg.max_decel)
 
 

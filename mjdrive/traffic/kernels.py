@@ -332,7 +332,7 @@ def _fold(state, gap: float, lead: float, s0: float, v: float, vT: float, den: f
 
 
 @_jit
-def plan_distances(v, accel, t_plan):
+def _plan_distances(v, accel, t_plan):
     """Distance [m] (S, NV) each vehicle moves by each substep time t_plan (S,) [s] at speed v [m/s] and constant
     acceleration [m/s^2], stopping at zero speed (as `Traffic._make_plan`)."""
     n_s, n_v = len(t_plan), len(v)
@@ -363,6 +363,16 @@ def _find_segment(g, gq: float, first: int, last: int) -> int:
         else:
             hi = mid
     return max(lo - 1, first)
+
+
+@_jit
+def plan_centre_poses(v, accel, t_plan, s, before, path, base, lane_length, first, last_segment, g, inv, x0, dx, y0,
+                      dy, h0, dh):
+    """`_plan_distances` and then `centre_poses` of a plan in one pass: ds (S, NV) [m] and the centre-line x, y [m]
+    and heading [rad] (S, NV)."""
+    ds = _plan_distances(v, accel, t_plan)
+    x, y, h = centre_poses(s, ds, before, path, base, lane_length, first, last_segment, g, inv, x0, dx, y0, dy, h0, dh)
+    return ds, x, y, h
 
 
 @_jit
@@ -421,11 +431,13 @@ def curve_speed(lane, s, base, lane_length, first, last_segment, g, inv, v0, dv,
 
 @_jit
 def desired_speed(path, offset, s, length, v0_own, vcurve, to_give_way, lane_length, entry_speed, speed_limit,
-                  anticipation, yield_lane, yield_stop, yield_speed):
+                  anticipation, yield_lane, yield_stop, yield_speed, v):
     """`following.idm`'s desired speed [m/s] of each follower: its own, the lane's limit, the curves ahead on
-    this lane and the next, and slow enough to stop at yield lines (roundabout) and give-way lines ahead."""
+    this lane and the next, and slow enough to stop at yield lines (roundabout) and give-way lines ahead; and
+    its speed's ratio to it, v / max(v0, 0.1) (whose 4th power, left to numpy, enters IDM)."""
     n_f, n_y = len(s), len(yield_lane)
     out = np.empty(n_f)
+    ratio = np.empty(n_f)
     ys2 = yield_speed**2
     for f in range(n_f):
         lane0 = max(path[f, 0], 0)
@@ -445,7 +457,8 @@ def desired_speed(path, offset, s, length, v0_own, vcurve, to_give_way, lane_len
         if to_give_way[f] < INF:
             v0 = _minimum(v0, np.sqrt(ys2 + 2 * 1.5 * _maximum(to_give_way[f], 0.0)))
         out[f] = v0
-    return out
+        ratio[f] = v[f] / _maximum(v0, 0.1)
+    return out, ratio
 
 
 @_jit

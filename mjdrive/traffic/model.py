@@ -501,12 +501,15 @@ class Traffic:
         to the start of each path lane, if known)."""
         t = self._t_plan[:, None]  # (S, 1)
         if KERNELS:  # the same numbers in one compiled pass
-            ds = kernels.plan_distances(self.v, self.accel, self._t_plan)
+            m = self.map
+            ds, x, y, h = kernels.plan_centre_poses(
+                self.v, self.accel, self._t_plan, self.s, self._path_starts() if start is None else start, self.path,
+                m.base, m.length, m.first, m.last_segment, m.g, m._inv, m._x0, m._dx, m._y0, m._dy, m._h0, m._dh)
         else:
             v, a = self.v[None], self.accel[None]
             stopped = (a < 0) & (v + a * t < 0)
             ds = np.where(stopped, v * v / np.maximum(-2 * a, 1e-9), v * t + 0.5 * a * t * t)  # (S, NV)
-        x, y, h = self._centre_poses(ds, start)
+            x, y, h = self._centre_poses(ds, start)
         out_pos = np.empty((len(t), self.n, 3))
         out_yaw = np.empty((len(t), self.n))
         out_speed = np.zeros((len(t), self.n))
