@@ -170,33 +170,40 @@ def gap_summary(t: Traffic, f: dict, ctx: dict, kappa: np.ndarray, den: np.ndarr
 
 def gap_summary_kernel(t: Traffic, f: dict, ctx: dict, kappa: np.ndarray, den: np.ndarray):
     """`gap_summary` by the compiled kernel (`kernels.gap_summary`): the same four arrays, bit for bit."""
-    m, cfg = t.map, t.config
+    n_k, n_y = len(t.map.cross_lane), (len(t.map.yield_lane) if t.approaches is None else 0)
     xy_o, yaw_o, v_o, hl_o, hw_o, idx_o = obstacles(t)
-    n_k = len(m.cross_lane)
     blocked = occupied_crossings(t) if (t.np_ and n_k) else np.zeros(n_k, dtype=bool)
-    n_y = len(m.yield_lane) if t.approaches is None else 0
     conflict, committed = _merge_state(t, ctx, f["accept_gap"]) if n_y else (_NO_BOOL, _NO_BOOL)
-    table = t.approaches if t.approaches is not None and len(t.approaches) else _NO_APPROACHES
-    urban = bool(t.urban)
     yaw, c = f["yaw"], np.ascontiguousarray  # the kernel is compiled for C-contiguous arrays
     return kernels.gap_summary(
         f["rows"], c(f["path"]), c(f["offset"]), f["s"], f["v"], f["length"], f["width"], f["T"], den,
         np.cos(yaw), np.sin(yaw), c(f["xy"]), kappa, f["courteous"],
         ctx["lane"], ctx["s"], ctx["v"], ctx["length"], c(ctx["offset"]),
         c(xy_o), np.cos(yaw_o), np.sin(yaw_o), v_o, hl_o, hw_o, idx_o,
-        m.cross_lane, c(m.cross_s), blocked,
-        m.yield_lane[:n_y], m.yield_stop[:n_y], m.yield_merge[:n_y], conflict, committed,
-        m.ending, m.length,
-        table.lane, table.s_in, table.s_out, table.other, table.o_in, table.o_out, table.yields, table.tie,
-        table.timed, table.merge, table.stop, table.courtesy, c(table.point), table.partner,
-        t.stopped_time, t.intention, MERGE, YIELD, t.nv,
-        t.active, t.lc_dist, cfg.lane_change_length, t.vehicle_slots, c(t._current_pos),
-        cfg.min_gap, cfg.stop_gap, cfg.max_decel, cfg.corridor_range, cfg.corridor_margin, cfg.crosswalk_margin,
-        cfg.merge_clearance, cfg.merge_speed, cfg.critical_gap_crossing, cfg.impatience, cfg.critical_gap_merge,
-        cfg.courtesy_range, urban,
-        COMMITTED, EDGE_MARGIN, MERGE_RANGE, CLEAR_ACCEL, CHANGING_RADIUS, HELD_SPEED, STANDING_ROOM, AT_LINE,
-        TURN_WAIT, CLAIM_DECEL, STOP_MARGIN,
-    )
+        blocked, conflict, committed, t.stopped_time, t.intention, t.active, t.lc_dist, c(t._current_pos),
+        *_gap_constants(t))
+
+
+def _gap_constants(t: Traffic) -> tuple:
+    """`kernels.gap_summary`'s arguments that are the traffic's own (map, approaches, configuration, constants),
+    gathered once per Traffic."""
+    if t._gap_constants is None:
+        m, cfg = t.map, t.config
+        n_y = len(m.yield_lane) if t.approaches is None else 0
+        table = t.approaches if t.approaches is not None and len(t.approaches) else _NO_APPROACHES
+        c = np.ascontiguousarray
+        t._gap_constants = (
+            m.cross_lane, c(m.cross_s), m.yield_lane[:n_y], m.yield_stop[:n_y], m.yield_merge[:n_y],
+            m.ending, m.length,
+            table.lane, table.s_in, table.s_out, table.other, table.o_in, table.o_out, table.yields, table.tie,
+            table.timed, table.merge, table.stop, table.courtesy, c(table.point), table.partner,
+            MERGE, YIELD, t.nv, cfg.lane_change_length, t.vehicle_slots,
+            cfg.min_gap, cfg.stop_gap, cfg.max_decel, cfg.corridor_range, cfg.corridor_margin, cfg.crosswalk_margin,
+            cfg.merge_clearance, cfg.merge_speed, cfg.critical_gap_crossing, cfg.impatience, cfg.critical_gap_merge,
+            cfg.courtesy_range, bool(t.urban),
+            COMMITTED, EDGE_MARGIN, MERGE_RANGE, CLEAR_ACCEL, CHANGING_RADIUS, HELD_SPEED, STANDING_ROOM, AT_LINE,
+            TURN_WAIT, CLAIM_DECEL, STOP_MARGIN)
+    return t._gap_constants
 
 
 def _merge_state(t: Traffic, ctx: dict, accept_gap: float) -> tuple[np.ndarray, np.ndarray]:

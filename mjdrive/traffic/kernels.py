@@ -58,20 +58,24 @@ def gap_summary(
     lane_a, s_a, v_a, len_a, offset_a,
     # obstacles of the corridor (O,)
     xy_o, co, so, v_o, hl_o, hw_o, idx_o,
+    # crosswalks blocked by pedestrians (K,); roundabout merges (Y,) in conflict, with a committed entry
+    blocked_k, conflict_y, committed_y,
+    # the vehicles' waiting times [s] (NV,) and intentions (NV, 4): courteous at merges where column `merge_column`
+    # holds `yield_code` (the ego, row NV, never waits and is never courteous)
+    stopped_time, intention,
+    # vehicles changing lane (NV,): active and lc_dist [m] below lane_change_length; their slots' poses (N, 3)
+    active_v, lc_dist, slot_pos,
+    # --- the rest is the traffic's own, the same at every decision (`following._gap_constants`) ---
     # crosswalks (K,)
-    cross_lane, cross_s, blocked_k,
+    cross_lane, cross_s,
     # roundabout merges (Y,)
-    yield_lane, yield_stop, yield_merge, conflict_y, committed_y,
+    yield_lane, yield_stop, yield_merge,
     # ending lanes (L,) (urban), all False elsewhere
     ending, lane_length,
     # conflict-zone approaches (R,) (urban), empty elsewhere
     ap_lane, ap_s_in, ap_s_out, ap_other, ap_o_in, ap_o_out, ap_yields, ap_tie, ap_timed, ap_merge, ap_stop,
     ap_courtesy, ap_point, ap_partner,
-    # the vehicles' waiting times [s] (NV,) and intentions (NV, 4): courteous at merges where column `merge_column`
-    # holds `yield_code` (the ego, row NV, never waits and is never courteous)
-    stopped_time, intention, merge_column, yield_code, ego_row,
-    # vehicles changing lane (NV,): active and lc_dist [m] below lane_change_length; their slots' poses (N, 3)
-    active_v, lc_dist, lane_change_length, vehicle_slots, slot_pos,
+    merge_column, yield_code, ego_row, lane_change_length, vehicle_slots,
     # scalars: config
     min_gap, stop_gap, max_decel, corridor_range, corridor_margin, crosswalk_margin, merge_clearance,
     merge_speed, critical_gap_crossing, impatience, critical_gap_merge, courtesy_range, urban,

@@ -164,6 +164,7 @@ class Traffic:
         self.generation = np.zeros(self.n, dtype=np.int64)  # per slot: +1 each time a road user (re)enters
         self.ego: EgoState | None = None
         self._obstacle_cache = None
+        self._gap_constants: tuple | None = None  # following._gap_constants
         self._ctx_s, self._ctx_v, self._ctx_len = np.zeros(self.nv + 1), np.zeros(self.nv + 1), np.zeros(self.nv + 1)
         self._den = 2.0 * np.sqrt(self.a_max * self.b_comf)  # [m/s^2] IDM's 2 sqrt(a b) (following.accelerations)
         self._b_agents = np.append(self.b_comf, 3.0)  # [m/s^2] comfortable deceleration, the ego last
