@@ -295,7 +295,7 @@ def test_roundabout_merge_state_agrees_in_sparse_traffic():
 def test_bookkeeping_kernels_agree_on_random_states(monkeypatch):
     """Lanes passed (some vehicles far past their lane's end), spawns into sparse traffic, lane changes, obstacles,
     crossings, curve speeds (also off the lane's ends) and poses, both ways from random states."""
-    checked = _checked_bookkeeping(monkeypatch)
+    checked, accelerations = _checked_bookkeeping(monkeypatch), _checked_accelerations(monkeypatch)
     rng = np.random.default_rng(5)
     for name in ("urban/concatenated", "urban/lane_change", "roundabout/d210"):
         for t in _random_states(name, 150, seed=1):
@@ -317,6 +317,15 @@ def test_bookkeeping_kernels_agree_on_random_states(monkeypatch):
             vertex = np.minimum(m.first[lane0][None] + np.arange(12)[:, None], m.last_segment[lane0][None] + 1)
             ds = np.maximum(m.g[vertex] - m.base[lane0][None] - t.s[None], 0.0)
             t._centre_poses(np.vstack([ds, ds[-1] + np.arange(1, 20)[:, None] * 4.0]))
+            ctx = t._context()
+            t.v0 = rng.choice([0.0, 0.05, 0.15, 8.0], t.nv)  # desired speeds near IDM's floor (0.1 m/s) too
+            model.accelerations(t, following.follower_table(t, ctx), ctx)
+            for _ in range(8):  # a lane change's room: any vehicle, any lane and the one after it, anywhere on it
+                target = int(rng.integers(t.map.n_lanes))
+                after = int(t.map.successors[target, 0])
+                if after >= 0:
+                    s_new = rng.uniform(0.0, t.map.length[target])
+                    lane_changes._room(t, int(rng.integers(t.nv)), s_new, target, after, ctx)
             for _ in range(3):  # every lane, near its end (merges, exits) or past it
                 t.path[:, 0] = rng.integers(0, t.map.n_lanes, t.nv)
                 t.s = t.map.length[t.path[:, 0]] - rng.uniform(-1.0, 20.0, t.nv)
@@ -331,7 +340,8 @@ def test_bookkeeping_kernels_agree_on_random_states(monkeypatch):
             model.lane_changes(t)
             _restore(t, saved)
     assert all(len(checked[name]) >= 450 for name in ("advance", "spawn", "lane_changes", "curve_speed"))
-    assert sum(checked["spawn"]) >= 20
+    assert sum(checked["spawn"]) >= 20 and len(accelerations) >= 450
+    assert {(room, behind >= 0) for room, behind, _ in checked["room"]} == {(True, True), (True, False), (False, False)}
     assert all(len(checked[name]) >= 150 for name in ("crossings", "pedestrians", "candidates", "centre"))
 
 
@@ -358,3 +368,19 @@ def test_compile_kernels_compiles_every_traffic_kernel():
             "compile_kernels(); print(uncompiled())")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip().splitlines()[-1] == "[]"
+
+
+def test_desired_speed_ratio_is_numpys():
+    """`kernels.desired_speed`'s speed ratio v / max(v0, 0.1), whose numpy power enters IDM, bit for bit, also
+    for desired speeds at and below IDM's floor."""
+    t = next(_random_states("roundabout/d210", 1))
+    rng = np.random.default_rng(3)
+    ctx = t._context()
+    f = following.follower_table(t, ctx)
+    for _ in range(50):
+        v0_own, v = rng.choice([0.0, 0.05, 0.1, 0.15, 0.3, 8.0], t.nv), rng.uniform(0.0, 0.5, t.nv)
+        m = t.map
+        v0, ratio = kernels.desired_speed(f["path"], f["offset"], f["s"], f["length"], v0_own, np.full(t.nv, 30.0),
+                                          np.full(t.nv, np.inf), m.length, m.entry_speed, m.speed_limit,
+                                          m.anticipation, m.yield_lane, m.yield_stop, t.config.yield_speed, v)
+        assert np.array_equal(ratio, v / np.maximum(v0, 0.1)) and np.any(v0 < 0.2)

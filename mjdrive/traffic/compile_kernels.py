@@ -41,7 +41,8 @@ def uncompiled() -> list[str]:
     """The traffic's kernels (those called from Python) this process has not compiled (or loaded) yet: none after
     `compile_kernels`."""
     return [f"{module.__name__}.{name}" for module in (kernels, state_kernels) for name, fn in vars(module).items()
-            if hasattr(fn, "signatures") and not name.startswith("_") and not fn.signatures]
+            if hasattr(fn, "signatures") and not name.startswith("_") and fn.py_func.__module__ == module.__name__
+            and not fn.signatures]
 
 
 def main() -> int:
