@@ -4,7 +4,7 @@ the decorators that compile them.
 numba reads NUMBA_CACHE_DIR once, when it is imported: it is set here (`numba_cache_dir`) before numba is
 imported, by this module or by the worker processes' preload (`mjdrive.envs.preload`), so that every process
 looks for the compiled kernels in the same place. Without it numba would look beside the sources (unwritable in
-a site install) and compile them again (~10 s) in every process.
+a site install) and compile them again (~20 s) in every process.
 
 A kernel repeats numpy code operation for operation and is checked against it bit for bit; without numba
 (`KERNELS` False: not installed, or MJDRIVE_NO_KERNELS=1) the numpy code runs, and the decorators leave the
@@ -52,7 +52,7 @@ def announce_compilation() -> None:
         return
     _announced = True
     if not any(numba_cache_dir().rglob("*.nbi")):
-        print(f"mjdrive: compiling the kernels once for this machine (about 10 s; cache {numba_cache_dir()})",
+        print(f"mjdrive: compiling the kernels once for this machine (about 20 s; cache {numba_cache_dir()})",
               file=sys.stderr, flush=True)
 
 

@@ -1,7 +1,7 @@
-"""`python -m mjdrive.envs.compile_kernels`: compile every numba kernel (traffic decisions, the route frame, the
-tasks' observations) into the on-disk cache once, by stepping a roundabout env (with pedestrians) and the
-concatenated urban route through a few traffic decisions (`make install` runs it), so that no env or worker
-pays the compilation later. Prints where the cache is and how long it took."""
+"""`python -m mjdrive.envs.compile_kernels`: compile every numba kernel into the on-disk cache once (`make install`
+runs it), so that no env or worker pays the compilation later: the traffic's and the route frame's
+(`mjdrive.traffic.compile_kernels`), then the tasks' observations, by stepping a roundabout env (with
+pedestrians) and the concatenated urban route. Prints where the cache is and how long it took."""
 
 from __future__ import annotations
 
@@ -12,13 +12,16 @@ import numpy as np
 
 from mjdrive import suite
 from mjdrive.compiled import KERNELS, numba_cache_dir
+from mjdrive.traffic import compile_kernels as traffic_kernels
 
 WARM_STEPS = 12  # control steps per env: over two traffic decisions on each
 
 
 def compile_kernels() -> float:
-    """Step the envs whose code calls every kernel; the wall time [s] it took (compiling, or loading the cache)."""
+    """The traffic's kernels, then envs whose observations call the tasks' kernels; the wall time [s] it took
+    (compiling, or loading the cache)."""
     start = time.perf_counter()
+    traffic_kernels.compile_kernels()
     for domain, task, kwargs in (("roundabout", "d120", {"road_users": {"car": 6, "motorcycle": 1, "pedestrian": 2}}),
                                  ("urban", "concatenated", {})):
         env = suite.load(domain, task, {"random": 0, **kwargs})
