@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -52,6 +52,8 @@ class EvalSpec:
     torch_threads: int = 1
     live_port: int | None = None  # stream the logs' channels to Foxglove (one server; episodes in this process)
     live_host: str = "127.0.0.1"
+    # [s] time.time() when the evaluation began; not in the repr, which keys the workers' cached runners
+    started: float | None = field(default=None, repr=False, compare=False)
 
 
 class EpisodeRunner:
@@ -91,9 +93,13 @@ class EpisodeRunner:
             from mjdrive.record import RecordEpisodes, episode_filename
 
             env = RecordEpisodes(self.env, spec.record_dir, first_episode=index)
-            # the unfinished file of a worker that died running this episode: its rerun writes the same name
-            (Path(spec.record_dir) / (episode_filename(env.recorder.spec, seed, index) + ".part")).unlink(
-                missing_ok=True)
+            # A worker that died running this episode left its unfinished file, or died after finishing the log
+            # but before reporting the row: the rerun writes the same name (the same episode, bit for bit). Logs
+            # older than this evaluation are kept (the rerun's name then takes a suffix).
+            final = Path(spec.record_dir) / episode_filename(env.recorder.spec, seed, index)
+            final.with_name(final.name + ".part").unlink(missing_ok=True)
+            if spec.started is not None and final.exists() and final.stat().st_mtime >= spec.started:
+                final.unlink()
         obs, info = env.reset(seed=seed)
         if not spec.deterministic:
             torch.manual_seed(seed)  # sampled actions are reproducible per episode too
@@ -129,7 +135,9 @@ def run_episode(spec: EvalSpec, index: int) -> dict[str, Any]:
             runner.close()
         _RUNNERS.clear()
         _RUNNERS[key] = EpisodeRunner(spec)
-    return _RUNNERS[key].run(index)
+    runner = _RUNNERS[key]
+    runner.spec = spec  # the same episodes; this evaluation's start time
+    return runner.run(index)
 
 
 def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None, seed: int = 10_000,
@@ -156,7 +164,7 @@ def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None
         raise ValueError("--live streams the episode logs of this process: drop --no-record, --workers and --ray")
     spec = EvalSpec(str(checkpoint), task, kwargs, config.get("actions", "continuous"), seed, deterministic,
                     None if record_dir is None else str(record_dir), int(config.get("torch_threads", 1)),
-                    *((live[1], live[0]) if live is not None else ()))
+                    *((live[1], live[0]) if live is not None else ()), started=time.time())
     start = time.perf_counter()
     if local:  # this process runs them: reuse the policy loaded above
         _RUNNERS.clear()

@@ -296,3 +296,29 @@ def test_vector_env_workers_each_run_on_their_own_cpu_where_there_are_enough():
         assert [os.sched_getaffinity(pid) for pid in env.pids] == [{cpu} for cpu in cpus[:workers]]
     finally:
         env.close()
+
+
+def test_a_rerun_episode_rewrites_the_log_a_dead_worker_finished_and_keeps_older_logs(tmp_path):
+    """A worker killed after publishing an episode's log but before reporting its row: the rerun writes the same
+    name (the same contents), not a second copy under another name. A log older than the evaluation is kept."""
+    reference = tmp_path / "reference"
+    rows = evaluate(CHECKPOINT, episodes=3, seed=700, task_kwargs=SHORT, record_dir=reference)["rows"]
+    names = sorted(p.name for p in reference.glob("*.mcap"))
+    folder = tmp_path / "rerun"
+    folder.mkdir()
+    older = folder / names[0]
+    older.write_bytes(b"an earlier evaluation's log")  # before this evaluation began: kept
+    stale = folder / names[2]
+
+    def finished_by_a_dead_worker(row: dict) -> None:  # episode 2's log is there before episode 2 runs
+        if row["episode"] == 0:
+            stale.write_bytes(b"episode 2, published by a worker that died before reporting it")
+
+    got = evaluate(CHECKPOINT, episodes=3, seed=700, task_kwargs=SHORT, record_dir=folder,
+                   on_episode=finished_by_a_dead_worker)["rows"]
+    assert older.read_bytes() == b"an earlier evaluation's log"
+    assert got[2]["log"] == rows[2]["log"] == names[2]
+    assert got[0]["log"] != rows[0]["log"]  # the earlier log's name was taken: a suffix
+    logs = {p.name: p for p in folder.glob("*.mcap")}
+    assert set(logs) == {*names, got[0]["log"]}
+    assert _episode_contents(logs[names[2]]) == _episode_contents(reference / names[2])
