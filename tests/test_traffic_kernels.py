@@ -363,7 +363,7 @@ def test_segment_search_within_a_lane_is_numpys_search(road_map):
 
 
 def test_compile_kernels_compiles_every_traffic_kernel():
-    """`python -m mjdrive.traffic.compile_kernels` runs every kernel (a fresh process: none compiled before)."""
+    """`mjdrive.traffic.compile_kernels.compile_kernels` runs every kernel (a fresh process: none compiled before)."""
     code = ("from mjdrive.traffic.compile_kernels import compile_kernels, uncompiled; "
             "compile_kernels(); print(uncompiled())")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout

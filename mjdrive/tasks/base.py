@@ -129,20 +129,12 @@ def step_in_chunks(physics: Sequence[Physics], nstep: int, step_all: Callable[[i
     steps them all by n): in one call without a `substep_callback`, else in chunks of `substep_interval` steps
     with each copy's callback after each chunk (given the chunk's duration [s]). `Physics.advance` steps one
     copy this way, the batched env many at once."""
-    first = physics[0]
-    if len(physics) == 1:  # the single env's per-step path: no lists
-        callback = first.substep_callback
-        if callback is None:
-            step_all(nstep)
-            return
-        pairs = ((first, callback),)
-    else:
-        pairs = tuple((p, p.substep_callback) for p in physics if p.substep_callback is not None)
-        if not pairs:
-            step_all(nstep)
-            return
-    chunk = max(1, int(first.substep_interval))
-    dt = float(first.raw_model.opt.timestep)  # [s]
+    pairs = [(p, p.substep_callback) for p in physics if p.substep_callback is not None]
+    if not pairs:
+        step_all(nstep)
+        return
+    chunk = max(1, int(physics[0].substep_interval))
+    dt = float(physics[0].raw_model.opt.timestep)  # [s]
     done = 0
     while done < nstep:
         n = min(chunk, nstep - done)

@@ -1,17 +1,14 @@
-"""`python -m mjdrive.traffic.compile_kernels`: compile the kernels (the traffic's, `kernels`, and the route
-frame's) into the on-disk cache once, by running a route frame and a few decisions of roundabout and urban
-traffic (`make install` does it), so that no env pays the compilation later. Prints where the cache is and how
-long it took."""
+"""Compile the traffic's kernels (`kernels`, `state_kernels`) and the route frame's into the on-disk cache, by
+running a route frame and a few decisions of roundabout and urban traffic; `python -m mjdrive.envs.compile_kernels`
+(which `make install` runs) calls it, then compiles the tasks' kernels."""
 
 from __future__ import annotations
 
-import sys
 import time
 
 import numpy as np
 
 from mjdrive import roads
-from mjdrive.compiled import numba_cache_dir
 from mjdrive.roads.lane import Lane
 from mjdrive.roads.route_frame import RouteFrame
 from mjdrive.traffic import kernels, state_kernels
@@ -43,16 +40,3 @@ def uncompiled() -> list[str]:
     return [f"{module.__name__}.{name}" for module in (kernels, state_kernels) for name, fn in vars(module).items()
             if hasattr(fn, "signatures") and not name.startswith("_") and fn.py_func.__module__ == module.__name__
             and not fn.signatures]
-
-
-def main() -> int:
-    if not kernels.KERNELS:
-        print("kernels: numba is not installed (pip install 'mjdrive[fast]'), the numpy code runs")
-        return 0
-    print(f"kernels: compiling into {numba_cache_dir()} ...", flush=True)
-    print(f"kernels: ready in {compile_kernels():.1f} s")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
