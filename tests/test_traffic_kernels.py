@@ -129,6 +129,10 @@ VEHICLE_STATE = ("active", "path", "s", "v", "v0", "d_pref", "lc_shift", "lc_dis
                  "accel", "intention", "ring_passed", "generation", "stats", "rng", "intent_rng")
 
 
+COMMITTED_STATE = ("_plan", "_current_pos", "_current_yaw", "_current_speed", "_current_quat", "ped_u", "ped_walking",
+                   "ped_dir", "ped_wait")
+
+
 def _checked_bookkeeping(monkeypatch) -> dict[str, list]:
     """Every decision's bookkeeping (`state_kernels`): lanes passed, spawns, lane changes, the corridor's
     obstacles, occupied crossings, curve speeds, vehicle poses and path starts, with the state they leave."""
@@ -150,6 +154,8 @@ def _checked_bookkeeping(monkeypatch) -> dict[str, list]:
         "poses": _both_ways(monkeypatch, model.Traffic, "_vehicle_poses", model),
         "starts": _both_ways(monkeypatch, model.Traffic, "_path_starts", model),
         "centre": _both_ways(monkeypatch, model.Traffic, "_centre_poses", model),
+        "commit": _both_ways(monkeypatch, model.Traffic, "_commit", model, VEHICLE_STATE + COMMITTED_STATE),
+        "walkers": _both_ways(monkeypatch, model, "commit_pedestrians", pedestrians, COMMITTED_STATE + ("rng",)),
     }
 
 
@@ -173,7 +179,7 @@ def test_kernels_give_the_numpy_numbers_at_every_decision(monkeypatch, domain, t
             observation, _ = env.reset()
     assert len(plans) >= 40 and len(accelerations) >= 40 and len(contexts) >= 40
     assert sum(n > 1 for n in summaries) >= 40  # the traffic's own decisions
-    for name in ("advance", "spawn", "lane_changes", "options", "obstacles", "curve_speed"):
+    for name in ("advance", "spawn", "lane_changes", "options", "obstacles", "curve_speed", "commit"):
         assert len(bookkeeping[name]) >= 40, name
     if domain == "urban":
         assert len(bookkeeping["finish"]) >= 40 and len(bookkeeping["waiting"]) >= 40
@@ -184,7 +190,7 @@ def test_kernels_give_the_numpy_numbers_at_every_decision(monkeypatch, domain, t
     assert any(bookkeeping["spawn"]) and len(bookkeeping["poses"]) >= 1 and len(bookkeeping["starts"]) >= 1
     if domain == "roundabout":
         assert len(bookkeeping["crossings"]) >= 40 and any(c.any() for c in bookkeeping["crossings"])
-        assert len(bookkeeping["pedestrians"]) >= 40
+        assert len(bookkeeping["pedestrians"]) >= 40 and len(bookkeeping["walkers"]) >= 40
     if domain == "urban":
         assert len(changes) >= 40 and len(successors) >= 5  # the signals at every decision, paths that go on
     if task == "lane_change":

@@ -158,7 +158,7 @@ class Traffic:
         self._vehicle_rows = np.arange(self.nv)
         self.mocap_ids: np.ndarray | None = None
         self._mocap: slice | np.ndarray | None = None  # where the slots are in data.mocap_*
-        self._views = None  # (data, data.mocap_pos, data.mocap_quat) of the last `write`
+        self._views = None  # (data, its mocap_pos and mocap_quat rows (views), their index) of the last `write`
         self.cpu_time = 0.0  # [s] wall time spent in `advance` (for benchmarks)
         self.stats = {"spawned": 0, "despawned": 0, "lane_changes": 0}
         self.generation = np.zeros(self.n, dtype=np.int64)  # per slot: +1 each time a road user (re)enters
@@ -194,6 +194,7 @@ class Traffic:
         self.mocap_ids = np.array(ids, dtype=np.int64)
         contiguous = not ids or np.array_equal(self.mocap_ids, np.arange(ids[0], ids[0] + self.n))
         self._mocap = slice(ids[0] if ids else 0, (ids[0] if ids else 0) + self.n) if contiguous else self.mocap_ids
+        self._views = None
 
     def _reset_state(self) -> None:
         nv, npd = self.nv, self.np_
@@ -380,21 +381,28 @@ class Traffic:
         """Write the current poses into data.mocap_pos / mocap_quat."""
         if self._mocap is None:
             raise RuntimeError("call Traffic.bind(model) before writing poses")
-        if self._views is None or self._views[0] is not data:  # the arrays are views into data: keep them
-            self._views = (data, data.mocap_pos, data.mocap_quat)
-        self._views[1][self._mocap] = self._current_pos
-        self._views[2][self._mocap] = self._current_quat
+        views = self._views
+        if views is None or views[0] is not data:  # views into data's arrays: kept (the slots' rows, when contiguous)
+            if isinstance(self._mocap, slice):
+                views = self._views = (data, data.mocap_pos[self._mocap], data.mocap_quat[self._mocap], Ellipsis)
+            else:
+                views = self._views = (data, data.mocap_pos, data.mocap_quat, self._mocap)
+        views[1][views[3]] = self._current_pos
+        views[2][views[3]] = self._current_quat
 
     def _commit(self, k: int = -1) -> None:
         """Make the plan's substep k (default: its end) the new state."""
         t_end = self._t_plan[k]
         v, a = self.v, self.accel
-        stop = (a < 0) & (v + a * t_end < 0)
-        ds = np.where(stop, v * v / np.maximum(-2 * a, 1e-9), v * t_end + 0.5 * a * t_end**2)
-        ds = np.where(self.active, ds, 0.0)
-        self.s += ds
-        self.lc_dist += ds
-        self.v = np.where(self.active, np.maximum(v + a * t_end, 0.0), 0.0)
+        if KERNELS:  # the same numbers in one compiled pass
+            self.v = state_kernels.commit_vehicles(v, a, self.active, t_end, t_end**2, self.s, self.lc_dist)
+        else:
+            stop = (a < 0) & (v + a * t_end < 0)
+            ds = np.where(stop, v * v / np.maximum(-2 * a, 1e-9), v * t_end + 0.5 * a * t_end**2)
+            ds = np.where(self.active, ds, 0.0)
+            self.s += ds
+            self.lc_dist += ds
+            self.v = np.where(self.active, np.maximum(v + a * t_end, 0.0), 0.0)
         if self.np_:
             commit_pedestrians(self, t_end)
         self._current_pos = self._plan.pos[k]

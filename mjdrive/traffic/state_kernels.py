@@ -390,3 +390,44 @@ def successors_then_lanes_passed(rows, u, urban, successors, n_successors, turn,
     for j in range(len(rows)):
         path[rows[j], n_p - 1] = chosen[j]
     return lanes_passed(s, path, active, v, lane_length)
+
+
+@_jit
+def commit_vehicles(v, accel, active, t_end, t_end2, s, lc_dist):
+    """`Traffic._commit`'s vehicle part: the distance each vehicle moved in `t_end` [s] (`t_end2` = t_end**2 as
+    numpy squares it) at its constant acceleration, stopping at rest, added to s and lc_dist in place [m]; returns
+    the new speeds [m/s] (0 for inactive vehicles)."""
+    n = len(v)
+    out = np.empty(n)
+    for r in range(n):
+        vr, ar = v[r], accel[r]
+        if active[r]:
+            if ar < 0 and vr + ar * t_end < 0:
+                ds = vr * vr / _maximum(-2 * ar, 1e-9)
+            else:
+                ds = vr * t_end + 0.5 * ar * t_end2
+        else:
+            ds = 0.0
+        s[r] += ds
+        lc_dist[r] += ds
+        out[r] = _maximum(vr + ar * t_end, 0.0) if active[r] else 0.0
+    return out
+
+
+@_jit
+def commit_pedestrians(ped_u, ped_dir, ped_speed, walking, wait, end, t_end):
+    """`pedestrians.commit_pedestrians` without its draws: the walkers move `t_end` [s] on along their crosswalk
+    (clipped to the kerbs `end` [m]), those who reached the far kerb stop and turn; `walking` and `wait` [s] are
+    updated in place. Returns the new positions [m] and directions, and who arrived (for the new waits' draws)."""
+    n = len(ped_u)
+    u_new, dir_new, arrived = np.empty(n), np.empty(n), np.zeros(n, dtype=np.bool_)
+    for p in range(n):
+        u = ped_u[p] + ped_dir[p] * ped_speed[p] * t_end if walking[p] else ped_u[p]
+        arrived[p] = walking[p] and ped_dir[p] * u >= end[p]
+        lo, hi = -end[p], end[p]
+        u = u if (u != u or u > lo) else lo  # np.clip's maximum then minimum
+        u_new[p] = u if (u != u or u < hi) else hi
+        walking[p] = walking[p] and not arrived[p]
+        dir_new[p] = -ped_dir[p] if arrived[p] else ped_dir[p]
+        wait[p] -= t_end
+    return u_new, dir_new, arrived
