@@ -40,12 +40,12 @@ class CollisionSensor:
 
     def __call__(self, data: mujoco.MjData) -> bool:
         """Whether the ego touches another geom now."""
-        if data.ncon == 0:
-            return False
         if self._counts is not None:  # the sensors tell whether there is any; the contacts, which one
             counts = data.sensordata
             if counts[self._counts[0]] <= counts[self._counts[1]]:
                 return False
+        elif data.ncon == 0:
+            return False
         pairs = data.contact.geom  # (ncon, 2)
         codes = self.code[pairs]
         hit = codes[:, 0] * codes[:, 1] == 2

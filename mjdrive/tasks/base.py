@@ -326,12 +326,20 @@ class DrivingEnvironment(control.Environment):
             raise ValueError("DrivingEnvironment steps with mj_step only (legacy_step=False)")
         super().__init__(physics, task, **kwargs)
         self._last_observation = None
-        self._warnings_before = physics.raw_data.warning.number.tobytes()  # the counts before this step's physics
+        self._warnings: tuple[mujoco.MjData, np.ndarray] | None = None  # (data, its warning counts: a view)
+        self._warnings_before = self.warning_counts().tobytes()  # the counts before this step's physics
         task.control_dt = self.control_timestep()  # [s] the comfort samples' period
 
     @property
     def info(self) -> dict[str, Any]:
         return self.task.info
+
+    def warning_counts(self) -> np.ndarray:
+        """MuJoCo's warning counts of the physics' data now (a view into it, kept while the data is the same)."""
+        data = self._physics.raw_data
+        if self._warnings is None or self._warnings[0] is not data:
+            self._warnings = (data, data.warning.number)
+        return self._warnings[1]
 
     @property
     def n_sub_steps(self) -> int:
@@ -370,7 +378,7 @@ class DrivingEnvironment(control.Environment):
         """First half of a control step: the task applies `action`; the physics' warning counts are kept to
         tell a blow-up in `after_physics`."""
         self._task.before_step(action, self._physics)
-        self._warnings_before = self._physics.raw_data.warning.number.tobytes()
+        self._warnings_before = self.warning_counts().tobytes()
 
     def after_physics(self) -> dm_env.TimeStep:
         """Second half of a control step, once the physics advanced `n_sub_steps`: the task's `after_step`,
@@ -378,8 +386,9 @@ class DrivingEnvironment(control.Environment):
         MuJoCo warning or a non-finite qpos ends the episode instead (`info["physics_error"]`, discount 0,
         the last observation again)."""
         data = self._physics.raw_data
-        warnings = data.warning.number  # a count that changed is a new warning (MuJoCo's auto-reset restarts them)
-        if warnings.tobytes() != self._warnings_before or not np.isfinite(data.qpos).all():
+        warnings = self.warning_counts()  # a count that changed is a new warning (MuJoCo's auto-reset restarts them)
+        qpos = data.qpos  # q.q is finite iff every q is (MuJoCo resets a state past 1e10 long before it overflows)
+        if warnings.tobytes() != self._warnings_before or not math.isfinite(qpos.dot(qpos)):
             new = warnings != np.frombuffer(self._warnings_before, dtype=warnings.dtype)
             names = [name for name, flag in zip(mujoco.mjtWarning.__members__, new, strict=False) if flag]
             self._reset_next_step = True

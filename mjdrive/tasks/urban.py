@@ -59,7 +59,7 @@ SUITE = containers.TaggedTasks()
 
 CONTROL_TIMESTEP = 0.1  # [s] 10 Hz
 SCENARIOS = (FOLLOW, "roundabout", "lane_change", "crossroad", "merge")  # the scenario one-hot, in order
-_SCENARIO_INDEX = {name: i for i, name in enumerate(SCENARIOS)}
+_SCENARIO_ONE_HOT = {name: np.eye(len(SCENARIOS), dtype=np.float32)[i] for i, name in enumerate(SCENARIOS)}
 _NO_INTENTIONS = np.zeros((0, len(INTENTION_SCENARIOS)), np.int64)  # the adversary rows' outside intention scenarios
 PIECES = {"roundabout": ("roundabout",), "lane_change": ("road",), "crossroad": ("crossroad",),
           "merge": ("merge",), "concatenated": ("roundabout", "road", "crossroad", "merge")}
@@ -110,6 +110,7 @@ class UrbanTask(DrivingTask):
         self.route_lane = Lane(np.asarray(route.polyline), name="route")
         self.route_frame = RouteFrame(self.route_lane)
         self.route_starts = route_offsets(route.road_map, route.route)  # [m] along the route
+        self._route_lanes = np.array(route.route, dtype=np.int64)  # the route's lane ids
         self.route_end = float(self.route_frame.s0[-1] + self.route_frame.length[-1])  # [m]
         self.start_s = 0.0 if scenario == "concatenated" else max(
             0.0, route.tactical.interval(scenario)[0] - config.start_before)
@@ -157,7 +158,7 @@ class UrbanTask(DrivingTask):
         path, s_lane = None, 0.0
         if abs(self.lane_offset) <= 0.5 * self.route_lane.width:
             k = int(np.searchsorted(self.route_starts, self.route_s, side="right") - 1)
-            path = np.array(self.urban.route[k:], dtype=np.int64)
+            path = self._route_lanes[k:].copy()
             s_lane = float(self.route_s - self.route_starts[k])
         return EgoState(x, y, yaw, speed, self.params.length, self.params.width, path, s_lane)
 
@@ -224,10 +225,11 @@ class UrbanTask(DrivingTask):
         return spec
 
     def _ego_vector(self) -> np.ndarray:
-        values = (self.speed / SPEED_SCALE, (self.heading_error + math.pi) / (2 * math.pi),
-                  (self.lane_offset / self.config.off_route + 1.0) / 2.0, self.route_s / self.route_end)
+        a, b = self.speed / SPEED_SCALE, (self.heading_error + math.pi) / (2 * math.pi)
+        c, d = (self.lane_offset / self.config.off_route + 1.0) / 2.0, self.route_s / self.route_end
         # clipped before the float32 cast, the same numbers as np.clip after it (0 and 1 are exact; NaN stays)
-        return np.array([min(max(v, 0.0), 1.0) for v in values], np.float32)
+        return np.array((min(max(a, 0.0), 1.0), min(max(b, 0.0), 1.0), min(max(c, 0.0), 1.0), min(max(d, 0.0), 1.0)),
+                        np.float32)
 
     def relevant_point(self) -> np.ndarray:
         """Where adversaries' distances are measured (§5.1.2): the next conflict point on the route within
@@ -271,8 +273,7 @@ class UrbanTask(DrivingTask):
             size = self.config.image_size
             obs = collections.OrderedDict(image=self.render_camera(physics, "ego/front", size, size).copy(), ego=ego)
         else:
-            scenario = np.zeros(len(SCENARIOS), np.float32)
-            scenario[_SCENARIO_INDEX[self.scenario]] = 1.0
+            scenario = _SCENARIO_ONE_HOT[self.scenario].copy()
             obs = collections.OrderedDict(ego=ego, scenario=scenario, adversaries=self.adversary_matrix())
         obs.update(self.sensor_observation(physics))
         return obs

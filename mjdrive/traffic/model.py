@@ -123,6 +123,7 @@ class Traffic:
         self.vehicle_slots = np.flatnonzero(is_vehicle)
         self.pedestrian_slots = np.flatnonzero(~is_vehicle)
         self.nv, self.np_ = len(self.vehicle_slots), len(self.pedestrian_slots)
+        self._vehicles_only = self.np_ == 0  # then slot i is vehicle row i
         vt = [types[i] for i in self.vehicle_slots]
         self._vtypes = vt
         self.length = 2 * self.half_size[self.vehicle_slots, 0]  # [m]
@@ -356,6 +357,18 @@ class Traffic:
         poses into `data`'s mocap arrays if given. `ego` is called at each decision for the ego's state."""
         start = time.perf_counter()
         substep = self.config.substep
+        plan = self._plan
+        if dt == substep and self._accumulated == 0.0 and plan is not None and self._k < self.n_plan:
+            # the usual call: one substep of the plan (the general path below gives the same state)
+            k = self._k
+            self._k = k + 1
+            self.time += substep
+            self._current_pos, self._current_yaw = plan.pos[k], plan.yaw[k]
+            self._current_speed, self._current_quat = plan.speed[k], plan.quat[k]
+            if data is not None:
+                self.write(data)
+            self.cpu_time += time.perf_counter() - start
+            return
         accumulated = self._accumulated + dt
         n = int(accumulated / substep + 1e-6)
         self._accumulated = accumulated - n * substep
@@ -628,6 +641,8 @@ class Traffic:
     @property
     def present(self) -> np.ndarray:
         """(N,) slots in the world now (active vehicles and all pedestrians)."""
+        if self._vehicles_only:
+            return self.active.copy()
         out = np.ones(self.n, dtype=bool)
         out[self.vehicle_slots] = self.active
         return out
@@ -652,6 +667,8 @@ class Traffic:
 
     def intentions(self) -> np.ndarray:
         """(N, 4) intention of every slot by scenario (columns `intentions.SCENARIOS`; -1 for pedestrians)."""
+        if self._vehicles_only:
+            return self.intention.copy()
         out = np.full((self.n, len(SCENARIOS)), -1, dtype=np.int64)
         out[self.vehicle_slots] = self.intention
         return out

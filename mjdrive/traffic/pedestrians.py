@@ -9,6 +9,7 @@ import numpy as np
 
 from mjdrive.traffic import state_kernels
 from mjdrive.traffic.kernels import KERNELS
+from mjdrive.traffic.spawning import uniform
 
 if TYPE_CHECKING:
     from mjdrive.traffic.model import Traffic
@@ -23,7 +24,7 @@ def commit_pedestrians(t: Traffic, t_end: float) -> None:
                                                                        t.ped_wait, t._ped_end, t_end)
         if arrived.any():
             lo, hi = cfg.pedestrian_wait
-            t.ped_wait[arrived] = t.rng.uniform(lo, hi, int(arrived.sum()))
+            t.ped_wait[arrived] = uniform(t.rng, lo, hi, int(arrived.sum()))
         return
     end = m.cw_half_length[t.ped_cw] + cfg.kerb
     u = np.where(t.ped_walking, t.ped_u + t.ped_dir * t.ped_speed * t_end, t.ped_u)
@@ -34,7 +35,7 @@ def commit_pedestrians(t: Traffic, t_end: float) -> None:
     t.ped_wait -= t_end
     if arrived.any():
         lo, hi = cfg.pedestrian_wait
-        t.ped_wait[arrived] = t.rng.uniform(lo, hi, int(arrived.sum()))
+        t.ped_wait[arrived] = uniform(t.rng, lo, hi, int(arrived.sum()))
 
 
 def pedestrian_starts(t: Traffic, ctx: dict) -> None:

@@ -16,6 +16,12 @@ if TYPE_CHECKING:
     from mjdrive.traffic.model import Traffic
 
 
+def uniform(rng: np.random.Generator, low, high, n: int) -> np.ndarray:
+    """`rng.uniform(low, high, n)` (low, high: scalars or (n,) arrays): the same draws and numbers (numpy computes
+    low + (high - low) * a `random()` draw), without its broadcasting machinery (~13-60 us a call)."""
+    return low + (high - low) * rng.random(n)
+
+
 @dataclass(frozen=True)
 class SpawnPoints:
     """Where vehicles (re)enter besides the map's sources (a scenario's critical points, §5.3): lane, s [m],
@@ -147,10 +153,10 @@ def activate(t: Traffic, rows: np.ndarray, lane: np.ndarray, s: np.ndarray, spee
     low, high = t._speed_range[rows, 0], t._speed_range[rows, 1]
     if t.urban and t.config.desired_speed is not None:
         low, high = t.config.desired_speed
-    t.v0[rows] = rng.uniform(low, high, len(rows))
+    t.v0[rows] = uniform(rng, low, high, len(rows))
     cap = np.minimum(t.v0[rows], t.map.speed_limit[lane])
     t.v[rows] = cap * speed_share
-    t.d_pref[rows] = rng.uniform(t._lateral_range[rows, 0], t._lateral_range[rows, 1])
+    t.d_pref[rows] = uniform(rng, t._lateral_range[rows, 0], t._lateral_range[rows, 1], len(rows))
     t.lc_shift[rows] = 0.0
     t.lc_dist[rows] = 1e9
     t.accel[rows] = 0.0
@@ -171,8 +177,8 @@ def _activate_compiled(t: Traffic, rows: np.ndarray, lane: np.ndarray, s: np.nda
     low, high = t._speed_range[rows, 0], t._speed_range[rows, 1]
     if t.urban and t.config.desired_speed is not None:
         low, high = t.config.desired_speed
-    v0 = t.rng.uniform(low, high, n)
-    d_pref = t.rng.uniform(t._lateral_range[rows, 0], t._lateral_range[rows, 1])
+    v0 = uniform(t.rng, low, high, n)
+    d_pref = uniform(t.rng, t._lateral_range[rows, 0], t._lateral_range[rows, 1], n)
     share = np.full(n, speed_share) if np.isscalar(speed_share) else np.asarray(speed_share, dtype=float)
     state_kernels.activate_speeds(rows, lane, v0, d_pref, share, t.map.speed_limit, t.v0, t.v, t.d_pref, t.lc_shift,
                                   t.lc_dist, t.accel)
