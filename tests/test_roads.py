@@ -390,7 +390,7 @@ def test_footprint_is_box_points_of_one_box():
 
 def test_route_frame_kernel_gives_the_numpy_numbers(monkeypatch):
     """RouteFrame's compiled projection (plain Python without numba) equals the numpy code bit for bit, search
-    window included, for points near and off a roundabout route."""
+    window included, for points near and off a roundabout route; so does its one-point form `point`."""
     import mjdrive.roads.route_frame as route_frame
     from mjdrive.roads.junctions import roundabout_routes
     from mjdrive.roads.lane import Lane
@@ -409,3 +409,11 @@ def test_route_frame_kernel_gives_the_numpy_numbers(monkeypatch):
             got = kernel_frame(points, full=step % 40 == 0)
             assert np.array_equal(expected[0], got[0]) and np.array_equal(expected[1], got[1])
             assert numpy_frame.segment == kernel_frame.segment
+            # one point, as floats (the urban task's per-step call), from the same window
+            x, y = float(points[1, 0]), float(points[1, 1])
+            monkeypatch.setattr(route_frame, "KERNELS", False)
+            expected_point = numpy_frame.point(x, y)
+            monkeypatch.setattr(route_frame, "KERNELS", True)
+            got_point = kernel_frame.point(x, y)
+            assert got_point == expected_point and numpy_frame.segment == kernel_frame.segment
+            assert all(type(v) is float for v in (*expected_point, *got_point))

@@ -99,8 +99,7 @@ def bench(seconds: float = 60.0, control_period: float = 0.1, seed: int = 0) -> 
     x, y = start.position(10.0)
     ego.reset(physics.raw_data, float(x), float(y), float(start.heading(10.0)))
     traffic.reset(np.random.default_rng(seed))
-    physics.substep_interval = max(1, int(round(traffic.config.substep / physics.timestep())))
-    physics.substep_callback = lambda ph, dt: traffic.advance(dt, None, ph.raw_data)
+    physics.set_substeps(lambda ph, dt: traffic.advance(dt, None, ph.raw_data), traffic.config.substep)
     n_sub = int(round(control_period / physics.timestep()))
     steps = int(round(seconds / control_period))
     traffic.cpu_time = 0.0

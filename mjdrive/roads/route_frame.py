@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mjdrive.compiled import KERNELS, announce_compilation, jit
+from mjdrive.compiled import KERNELS, announce_compilation, inline, jit
 from mjdrive.roads import _spatial as sp
 from mjdrive.roads.lane import Lane
 
@@ -51,6 +51,35 @@ class RouteFrame:
         self.segment = lo + int(j[0])
         return self.s0[lo + j] + clamped[rows, j], side[rows, j]
 
+    def point(self, x: float, y: float) -> tuple[float, float]:
+        """(s, d) [m] of one point (x, y) [m], which moves the search window: `self(np.array([[x, y]]))`'s numbers
+        as floats (without arrays, with numba)."""
+        if not KERNELS:
+            s, d = self(np.array([[x, y]], dtype=np.float64))
+            return float(s[0]), float(d[0])
+        n = len(self.x0)
+        lo, hi = max(self.segment + self.WINDOW[0], 0), min(self.segment + self.WINDOW[1], n)
+        s, d, self.segment = _nearest(float(x), float(y), self.x0, self.y0, self.tx, self.ty, self.length, self.s0,
+                                      lo, hi)
+        return s, d
+
+
+@inline
+def _nearest(x, y, x0, y0, tx, ty, length, s0, lo, hi):
+    """(s, d) [m] of the point (x, y) on its nearest of the segments lo..hi (the first of equally near ones), and
+    that segment: inlined into `_project`, called from Python by `RouteFrame.point`."""
+    best, best_j, best_along, best_side = np.inf, -1, 0.0, 0.0
+    for j in range(lo, hi):
+        px, py = x - x0[j], y - y0[j]
+        along = px * tx[j] + py * ty[j]
+        side = tx[j] * py - ty[j] * px
+        clamped = min(max(along, 0.0), length[j])
+        beyond = along - clamped
+        distance = beyond * beyond + side * side
+        if distance < best or best_j < 0:
+            best, best_j, best_along, best_side = distance, j, clamped, side
+    return s0[best_j] + best_along, best_side, best_j
+
 
 @jit
 def _project(points, x0, y0, tx, ty, length, s0, lo, hi):
@@ -61,18 +90,7 @@ def _project(points, x0, y0, tx, ty, length, s0, lo, hi):
     d = np.empty(n_k)
     first = lo
     for k in range(n_k):
-        best, best_j, best_along, best_side = np.inf, -1, 0.0, 0.0
-        for j in range(lo, hi):
-            px, py = points[k, 0] - x0[j], points[k, 1] - y0[j]
-            along = px * tx[j] + py * ty[j]
-            side = tx[j] * py - ty[j] * px
-            clamped = min(max(along, 0.0), length[j])
-            beyond = along - clamped
-            distance = beyond * beyond + side * side
-            if distance < best or best_j < 0:
-                best, best_j, best_along, best_side = distance, j, clamped, side
-        s[k] = s0[best_j] + best_along
-        d[k] = best_side
+        s[k], d[k], j = _nearest(points[k, 0], points[k, 1], x0, y0, tx, ty, length, s0, lo, hi)
         if k == 0:
-            first = best_j
+            first = j
     return s, d, first

@@ -33,6 +33,7 @@ class TacticalTrajectory:
             check("scenario", name, name in SCENARIOS, f"one of {SCENARIOS}")
             check("interval", (name, s0, s1), last <= s0 < s1, "s_start < s_end, after the previous interval")
             last = s1
+        object.__setattr__(self, "_starts", [s0 for _, s0, _ in self.intervals])  # for `scenario_at`
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -48,7 +49,7 @@ class TacticalTrajectory:
 
     def scenario_at(self, s: float) -> str:
         """The scenario at route arc length s [m] (intervals are [s_start, s_end)); FOLLOW outside them."""
-        k = bisect.bisect_right([s0 for _, s0, _ in self.intervals], s) - 1
+        k = bisect.bisect_right(self._starts, s) - 1
         if k >= 0 and s < self.intervals[k][2]:
             return self.intervals[k][0]
         return FOLLOW

@@ -133,8 +133,7 @@ def step_in_chunks(physics: Sequence[Physics], nstep: int, step_all: Callable[[i
     if not pairs:
         step_all(nstep)
         return
-    chunk = max(1, int(physics[0].substep_interval))
-    dt = float(physics[0].raw_model.opt.timestep)  # [s]
+    chunk, dt = physics[0].substep_interval, physics[0].substep_dt  # [-], [s]
     done = 0
     while done < nstep:
         n = min(chunk, nstep - done)
@@ -148,15 +147,23 @@ class Physics(dm_mujoco.Physics):
     """dm_control Physics; `raw_model`/`raw_data` are the mujoco structs used on the hot path (attributes, set
     whenever dm_control (re)loads the data).
 
-    A task may register `substep_callback(physics, dt)`: `step(n)` then runs the physics in chunks of
-    `substep_interval` steps and calls it after each chunk with the chunk's duration dt [s] (e.g. to move
+    A task may register `substep_callback(physics, dt)` with `set_substeps`: `step(n)` then runs the physics in
+    chunks of `substep_interval` steps and calls it after each chunk with the chunk's duration dt [s] (e.g. to move
     kinematic traffic and write its mocap poses at a finer period than the control period).
     """
 
     substep_callback: Callable[[Physics, float], None] | None = None
     substep_interval: int = 10  # physics steps per callback
+    substep_dt: float = 0.0  # [s] the physics step when the callback was set
     raw_model: mujoco.MjModel
     raw_data: mujoco.MjData
+
+    def set_substeps(self, callback: Callable[[Physics, float], None] | None, period: float) -> None:
+        """Call `callback(physics, dt)` every `period` [s] of physics (the nearest whole number of physics steps,
+        at least one) from now on; None: no callback."""
+        self.substep_dt = float(self.raw_model.opt.timestep)  # [s]
+        self.substep_interval = max(1, int(round(period / self.substep_dt)))
+        self.substep_callback = callback
 
     def _reload_from_data(self, data) -> None:
         self.raw_model, self.raw_data = data.model.ptr, data.ptr  # before dm_control's own set-up uses them
@@ -200,6 +207,7 @@ class DrivingTask(control.Task):
         self.info: dict[str, Any] = {}  # episode metrics, refreshed every step
         self.reward_terms: dict[str, float] = {}  # this step's reward, term by term (for logs)
         self.comfort = ComfortMeter()  # this episode's chassis samples, one per control step
+        self._chassis: tuple[float, float, float] | None = None  # (yaw, forward, left) read since the physics moved
         self.control_dt: float | None = None  # [s] control period, set by the DrivingEnvironment
 
     @property
@@ -220,6 +228,7 @@ class DrivingTask(control.Task):
             raise ValueError(f"action must have shape (3,) = (throttle, steer, brake), got {action.shape}")
         self.vehicle.apply(physics.raw_data, action[0], action[1], action[2])
         self.last_action = action
+        self._chassis = None  # the physics moves next
 
     # --- ego state ----------------------------------------------------------------------------------
     def ego_corners(self, physics: Physics) -> np.ndarray:
@@ -231,9 +240,20 @@ class DrivingTask(control.Task):
         vx, vy, yaw = self._planar_velocity(data)
         return np.array([vx, vy]), yaw
 
-    def _planar_velocity(self, data: mujoco.MjData) -> tuple[float, float, float]:
-        """(vx, vy) [m/s] of the chassis in the world frame and its yaw [rad]."""
-        _, _, yaw, forward, left, _ = self.vehicle.planar_state(data)
+    def read_chassis(self, data: mujoco.MjData) -> tuple[float, float, float, float, float, float]:
+        """`Vehicle.planar_state` of the ego, kept for this control step's comfort sample (tasks that read it
+        after a step or reset let the sample reuse it)."""
+        state = self.vehicle.planar_state(data)
+        self._chassis = state[2], state[3], state[4]
+        return state
+
+    def _planar_velocity(self, data: mujoco.MjData, reuse: bool = False) -> tuple[float, float, float]:
+        """(vx, vy) [m/s] of the chassis in the world frame and its yaw [rad] (`reuse`: the chassis state
+        `read_chassis` kept since the physics last moved, if any)."""
+        if reuse and self._chassis is not None:
+            yaw, forward, left = self._chassis
+        else:
+            _, _, yaw, forward, left, _ = self.vehicle.planar_state(data)
         c, s = math.cos(yaw), math.sin(yaw)
         return c * forward - s * left, s * forward + c * left, yaw
 
@@ -245,7 +265,7 @@ class DrivingTask(control.Task):
     def sample_comfort(self, data: mujoco.MjData, meter: ComfortMeter | None = None) -> None:
         """Add the state of `data` after a control step to `meter` (default: the task's `comfort`; the
         recorder keeps its own); a non-finite state is left out."""
-        vx, vy, yaw = self._planar_velocity(data)
+        vx, vy, yaw = self._planar_velocity(data, reuse=meter is None)
         if math.isfinite(yaw) and math.isfinite(vx) and math.isfinite(vy):
             (self.comfort if meter is None else meter).append(vx, vy, yaw)
 
@@ -261,8 +281,7 @@ class DrivingTask(control.Task):
         seconds of physics: the chunk is the nearest whole number of physics steps) from now on."""
         self.lane_invasion_sensor.reset(self.ego_corners(physics))
         self.collision_sensor.reset()
-        physics.substep_interval = max(1, int(round(self.substep_period() / physics.timestep())))
-        physics.substep_callback = self.substep
+        physics.set_substeps(self.substep, self.substep_period())
 
     def substep_period(self) -> float:
         """[s] of physics between `substep` calls: CONTACT_SAMPLE_PERIOD (tasks that move things between

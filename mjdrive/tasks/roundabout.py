@@ -243,7 +243,7 @@ class RoundaboutTask(DrivingTask):
 
     def _update_ego(self, physics: Physics) -> None:
         data = physics.raw_data
-        x, y, yaw, self.speed, _, self.yaw_rate = self.vehicle.planar_state(data)  # [m/s], [rad/s]
+        x, y, yaw, self.speed, _, self.yaw_rate = self.read_chassis(data)  # [m/s], [rad/s]
         self.xy, self.yaw = np.array([x, y]), yaw
         self.corners = footprint(x, y, yaw, self.params.length, self.params.width)  # (4,2) [m]
         s, d = self.route_frame(np.vstack([self.xy[None], self.corners]))

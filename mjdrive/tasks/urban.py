@@ -163,10 +163,9 @@ class UrbanTask(DrivingTask):
         return EgoState(x, y, yaw, speed, self.params.length, self.params.width, path, s_lane)
 
     def _update_ego(self, physics: Physics) -> None:
-        x, y, yaw, self.speed, _, self.yaw_rate = self.vehicle.planar_state(physics.raw_data)
+        x, y, yaw, self.speed, _, self.yaw_rate = self.read_chassis(physics.raw_data)
         self.xy, self.yaw = np.array([x, y]), yaw
-        s, d = self.route_frame(self.xy[None])
-        self.route_s, self.lane_offset = float(s[0]), float(d[0])  # [m]
+        self.route_s, self.lane_offset = self.route_frame.point(x, y)  # [m]
         self.scenario = self.urban.tactical.scenario_at(self.route_s)  # the active scenario
         tangent = self.route_frame.tangent[self.route_frame.segment]
         self.heading_error = float(wrap_angle(yaw - math.atan2(tangent[1], tangent[0])))  # [rad]

@@ -24,7 +24,9 @@ def compile_kernels() -> float:
     start = time.perf_counter()
     rm = roads.roundabout()
     route = next(iter(roads.roundabout_routes(rm).values()))
-    RouteFrame(Lane(rm.route_polyline(route), name="route"))(np.zeros((5, 2)), full=True)
+    frame = RouteFrame(Lane(rm.route_polyline(route), name="route"))
+    frame(np.zeros((5, 2)), full=True)
+    frame.point(0.0, 0.0)
     for traffic in (Traffic(rm, counts_to_kinds({"car": 6, "motorcycle": 1, "pedestrian": 2})),
                     urban_traffic(roads.concatenated())):
         traffic.reset(np.random.default_rng(0), density=0.5)
