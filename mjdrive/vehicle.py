@@ -188,8 +188,9 @@ class Vehicle:
 
     # --- read-outs --------------------------------------------------------------------------------------
     def _quat(self, data: mujoco.MjData) -> tuple[float, float, float, float]:
-        q, a = data.qpos, self._q + 3
-        return float(q[a]), float(q[a + 1]), float(q[a + 2]), float(q[a + 3])
+        a = self._q + 3
+        w, x, y, z = data.qpos[a : a + 4].tolist()  # Python floats, read at once
+        return w, x, y, z
 
     def pose(self, data: mujoco.MjData) -> tuple[float, float, float]:
         """(x [m], y [m], yaw [rad]) of the chassis origin (footprint centre) in the world."""
@@ -200,8 +201,7 @@ class Vehicle:
     def velocity_body(self, data: mujoco.MjData) -> tuple[float, float]:
         """(forward, leftward) velocity [m/s] of the chassis origin in the chassis frame."""
         w, x, y, z = self._quat(data)
-        v, a = data.qvel, self._v
-        vx, vy, vz = float(v[a]), float(v[a + 1]), float(v[a + 2])
+        vx, vy, vz = data.qvel[self._v : self._v + 3].tolist()
         forward = (1.0 - 2.0 * (y * y + z * z)) * vx + 2.0 * (x * y + w * z) * vy + 2.0 * (x * z - w * y) * vz
         left = 2.0 * (x * y - w * z) * vx + (1.0 - 2.0 * (x * x + z * z)) * vy + 2.0 * (y * z + w * x) * vz
         return forward, left
@@ -209,16 +209,14 @@ class Vehicle:
     def planar_state(self, data: mujoco.MjData) -> tuple[float, float, float, float, float, float]:
         """(x [m], y [m], yaw [rad], forward [m/s], leftward [m/s], yaw rate [rad/s]): `pose`, `velocity_body`
         and `yaw_rate` from one read of the chassis state (the same arithmetic, for the per-step path)."""
-        q, v, a = data.qpos, data.qvel, self._q
-        w, x, y, z = float(q[a + 3]), float(q[a + 4]), float(q[a + 5]), float(q[a + 6])
+        a, b = self._q, self._v
+        px, py, _, w, x, y, z = data.qpos[a : a + 7].tolist()  # Python floats, read at once
+        vx, vy, vz, wx, wy, wz = data.qvel[b : b + 6].tolist()
         yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-        b = self._v
-        vx, vy, vz = float(v[b]), float(v[b + 1]), float(v[b + 2])
         forward = (1.0 - 2.0 * (y * y + z * z)) * vx + 2.0 * (x * y + w * z) * vy + 2.0 * (x * z - w * y) * vz
         left = 2.0 * (x * y - w * z) * vx + (1.0 - 2.0 * (x * x + z * z)) * vy + 2.0 * (y * z + w * x) * vz
-        yaw_rate = (2.0 * (x * z - w * y) * float(v[b + 3]) + 2.0 * (y * z + w * x) * float(v[b + 4])
-                    + (1.0 - 2.0 * (x * x + y * y)) * float(v[b + 5]))  # fmt: skip
-        return float(q[a]), float(q[a + 1]), yaw, forward, left, yaw_rate
+        yaw_rate = 2.0 * (x * z - w * y) * wx + 2.0 * (y * z + w * x) * wy + (1.0 - 2.0 * (x * x + y * y)) * wz
+        return px, py, yaw, forward, left, yaw_rate
 
     def speed(self, data: mujoco.MjData) -> float:
         """Signed longitudinal speed [m/s] (negative when rolling backwards)."""
