@@ -206,3 +206,29 @@ def test_trajectories_equal_independent_single_envs_bit_for_bit(domain, task, kw
             returns[i], lengths[i] = 0.0, 0
     assert ends["terminated"] >= 2 and ends["truncated"] >= 2, ends
     env.close()
+
+
+def test_substep_callbacks_get_each_chunks_duration():
+    """`Physics.set_substeps` calls back after every chunk of physics steps (the period's nearest whole number)
+    with the chunk's duration, a shorter last chunk included; a callback set by hand gets the same durations."""
+    from mjdrive import suite
+
+    env = suite.load("waypoints", "straight", {"random": 0})
+    env.reset()
+    physics = env.physics
+    dt = physics.timestep()  # [s]
+    for by_hand in (False, True):
+        calls = []
+        start = physics.data.time
+
+        def note(p, duration, calls=calls):
+            calls.append((duration, p.data.time))
+
+        if by_hand:
+            physics.substep_dt, physics.substep_interval, physics.substep_callback = 0.0, 4, note
+        else:
+            physics.set_substeps(note, 4.2 * dt)
+        assert physics.substep_interval == 4
+        physics.advance(4 * 5 + 3)
+        assert [duration for duration, _ in calls] == [4 * dt] * 5 + [3 * dt]
+        np.testing.assert_allclose([t - start for _, t in calls], dt * np.array([4, 8, 12, 16, 20, 23]))

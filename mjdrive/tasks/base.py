@@ -134,6 +134,8 @@ def step_in_chunks(physics: Sequence[Physics], nstep: int, step_all: Callable[[i
         step_all(nstep)
         return
     chunk, dt = physics[0].substep_interval, physics[0].substep_dt  # [-], [s]
+    if not dt:  # a callback set without `set_substeps`
+        dt = float(physics[0].raw_model.opt.timestep)
     done = 0
     while done < nstep:
         n = min(chunk, nstep - done)
@@ -154,7 +156,7 @@ class Physics(dm_mujoco.Physics):
 
     substep_callback: Callable[[Physics, float], None] | None = None
     substep_interval: int = 10  # physics steps per callback
-    substep_dt: float = 0.0  # [s] the physics step when the callback was set
+    substep_dt: float = 0.0  # [s] the physics step when `set_substeps` set the callback (0: read it each time)
     raw_model: mujoco.MjModel
     raw_data: mujoco.MjData
 
