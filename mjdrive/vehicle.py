@@ -160,8 +160,10 @@ class Vehicle:
         self._acc = int(model.sensor_adr[oid(mujoco.mjtObj.mjOBJ_SENSOR, "imu_acc")])
         self._gz = float(model.opt.gravity[2])  # [m/s^2]
         self._dofs = np.concatenate([np.arange(self._v, self._v + 6), steer_v, self._spin_v, susp_v])
-        self._ctrl = np.zeros(p.n_ctrl)  # scratch controls of `apply`
         self._n_brake = 2 + len(p.driven_wheels)  # index of the first brake in ctrl order
+        ids = self.actuator_ids  # the car's rows of ctrl: a slice when they follow each other in ctrl order
+        contiguous = bool(len(ids)) and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids)))
+        self._ctrl_rows = slice(int(ids[0]), int(ids[0]) + len(ids)) if contiguous else ids
         self._model = model
 
     # --- commands ---------------------------------------------------------------------------------------
@@ -181,10 +183,9 @@ class Vehicle:
         p = self.params
         left, right = ackermann(np.float64(min(max(st, -1.0), 1.0) * p.max_steer), p.wheelbase, p.track)
         hold = BRAKE_HOLD_SPEED / max(abs(self.speed(data)), BRAKE_HOLD_SPEED)
-        self._ctrl[0], self._ctrl[1] = left, right
-        self._ctrl[2 : self._n_brake] = min(max(t, 0.0), 1.0)
-        self._ctrl[self._n_brake :] = min(max(b, 0.0), 1.0) * hold
-        data.ctrl[self.actuator_ids] = self._ctrl
+        drive, brake_ctrl = min(max(t, 0.0), 1.0), min(max(b, 0.0), 1.0) * hold
+        n_brake = self._n_brake
+        data.ctrl[self._ctrl_rows] = [left, right] + [drive] * (n_brake - 2) + [brake_ctrl] * (p.n_ctrl - n_brake)
 
     # --- read-outs --------------------------------------------------------------------------------------
     def _quat(self, data: mujoco.MjData) -> tuple[float, float, float, float]:

@@ -228,7 +228,8 @@ class DrivingTask(control.Task):
         action = np.asarray(action, dtype=np.float64)
         if action.shape != (3,):
             raise ValueError(f"action must have shape (3,) = (throttle, steer, brake), got {action.shape}")
-        self.vehicle.apply(physics.raw_data, action[0], action[1], action[2])
+        throttle, steer, brake = action.tolist()
+        self.vehicle.apply(physics.raw_data, throttle, steer, brake)
         self.last_action = action
         self._chassis = None  # the physics moves next
 
