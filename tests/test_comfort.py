@@ -205,3 +205,29 @@ def test_sedan_full_throttle_at_10hz():
     inner = slice(p.window, -p.window)
     np.testing.assert_allclose(p.a_lon[inner], np.array(imu)[inner], atol=0.05)
     assert m.accel_lat_p95 < 0.05 and m.jerk_lat_max < 0.05
+
+
+@pytest.mark.parametrize("domain, task", [("urban", "concatenated"), ("roundabout", "d120"), ("waypoints", "straight")])
+def test_each_comfort_sample_is_the_chassis_after_its_step(domain, task):
+    """The task's comfort meter gets, after reset and after every control step, the chassis' planar velocity and
+    yaw read afresh from the physics at that moment (tasks that read the chassis in `after_step` hand it over
+    instead of reading it twice: the same numbers)."""
+    from mjdrive import suite
+
+    env = suite.load(domain, task, {"random": 2})
+    env.reset()
+    meter, data = env.task.comfort, env.physics.raw_data
+    rng = np.random.default_rng(0)
+    k, checked, yaws = 0, 0, []  # k: the sample of this step in the episode's meter
+    for _ in range(60):
+        _, _, yaw, forward, left, _ = env.task.vehicle.planar_state(data)
+        c, s = math.cos(yaw), math.sin(yaw)
+        assert len(meter) == k + 1
+        assert tuple(meter._velocity[k]) == (c * forward - s * left, s * forward + c * left)
+        assert meter._yaw[k] == yaw
+        checked, k = checked + 1, k + 1
+        yaws.append(yaw)
+        if env.step(np.array([rng.uniform(0.3, 1.0), rng.uniform(-0.3, 0.3), 0.0])).last():
+            env.reset()  # a new episode: its first sample is the state after reset
+            k = 0
+    assert checked == 60 and np.ptp(yaws) > 0.0  # the car drove and turned: the samples changed

@@ -223,3 +223,20 @@ def test_traffic_step_has_no_python_loop_per_road_user(roundabout_map):
     many = _python_lines(counts_to_kinds({"car": 40, "motorcycle": 6, "bicycle": 6, "pedestrian": 8}),
                          roundabout_map)
     assert many < 1.5 * few, (few, many)
+
+
+def test_uniform_draws_are_generator_uniform():
+    """`spawning.uniform` (the spawns' and pedestrians' draws) gives `Generator.uniform`'s numbers and leaves the
+    generator in the same state: scalar and per-element bounds, one to many draws, empty ranges."""
+    from mjdrive.traffic.spawning import uniform
+
+    bounds = np.random.default_rng(7)
+    for seed in range(50):
+        n = 1 + seed % 9
+        low = bounds.uniform(-5.0, 5.0, n)
+        high = low + bounds.uniform(0.0, 4.0, n) * (seed % 5 > 0)  # every fifth: high == low
+        for lo, hi in ((low, high), (float(low[0]), float(high[0])), (0.5, 2.5)):
+            expected, got = np.random.default_rng(seed), np.random.default_rng(seed)
+            want = expected.uniform(lo, hi) if np.ndim(lo) else expected.uniform(lo, hi, n)
+            assert np.array_equal(uniform(got, lo, hi, n), want)
+            assert got.bit_generator.state == expected.bit_generator.state
