@@ -59,9 +59,9 @@ class RouteFrame:
             return float(s[0]), float(d[0])
         n = len(self.x0)
         lo, hi = max(self.segment + self.WINDOW[0], 0), min(self.segment + self.WINDOW[1], n)
-        s, d, self.segment = _nearest(float(x), float(y), self.x0, self.y0, self.tx, self.ty, self.length, self.s0,
-                                      lo, hi)
-        return s, d
+        s, d, segment = _nearest(float(x), float(y), self.x0, self.y0, self.tx, self.ty, self.length, self.s0, lo, hi)
+        self.segment = int(segment)
+        return float(s), float(d)
 
 
 @inline
