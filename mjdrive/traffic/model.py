@@ -357,18 +357,6 @@ class Traffic:
         poses into `data`'s mocap arrays if given. `ego` is called at each decision for the ego's state."""
         start = time.perf_counter()
         substep = self.config.substep
-        plan = self._plan
-        if dt == substep and self._accumulated == 0.0 and plan is not None and self._k < self.n_plan:
-            # the usual call: one substep of the plan (the general path below gives the same state)
-            k = self._k
-            self._k = k + 1
-            self.time += substep
-            self._current_pos, self._current_yaw = plan.pos[k], plan.yaw[k]
-            self._current_speed, self._current_quat = plan.speed[k], plan.quat[k]
-            if data is not None:
-                self.write(data)
-            self.cpu_time += time.perf_counter() - start
-            return
         accumulated = self._accumulated + dt
         n = int(accumulated / substep + 1e-6)
         self._accumulated = accumulated - n * substep

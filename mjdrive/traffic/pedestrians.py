@@ -18,15 +18,14 @@ if TYPE_CHECKING:
 def commit_pedestrians(t: Traffic, t_end: float) -> None:
     """The pedestrians' state after `t_end` [s] of the plan: walkers move on, those at the far kerb stop, turn and
     draw a new wait (`state_kernels.commit_pedestrians` with numba: the same)."""
-    m, cfg = t.map, t.config
+    cfg, end = t.config, t._ped_end  # [m] the kerbs along each pedestrian's crosswalk
     if KERNELS:
         t.ped_u, t.ped_dir, arrived = state_kernels.commit_pedestrians(t.ped_u, t.ped_dir, t.ped_speed, t.ped_walking,
-                                                                       t.ped_wait, t._ped_end, t_end)
+                                                                       t.ped_wait, end, t_end)
         if arrived.any():
             lo, hi = cfg.pedestrian_wait
             t.ped_wait[arrived] = uniform(t.rng, lo, hi, int(arrived.sum()))
         return
-    end = m.cw_half_length[t.ped_cw] + cfg.kerb
     u = np.where(t.ped_walking, t.ped_u + t.ped_dir * t.ped_speed * t_end, t.ped_u)
     arrived = t.ped_walking & (t.ped_dir * u >= end)
     t.ped_u = np.clip(u, -end, end)
