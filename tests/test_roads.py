@@ -386,6 +386,10 @@ def test_footprint_is_box_points_of_one_box():
         length, width = rng.uniform(0.5, 6.0), rng.uniform(0.5, 2.5)
         expected = box_points((x, y), yaw, BOX_CORNERS * (0.5 * length, 0.5 * width))
         assert np.array_equal(footprint(x, y, yaw, length, width), expected)
+        # with the centre first, and with the caller's cosine and sine: the same corners
+        with_centre = footprint(x, y, yaw, length, width, centre=True, cos_sin=(np.cos(yaw), np.sin(yaw)))
+        assert with_centre.shape == (5, 2) and with_centre[0].tolist() == [x, y]
+        assert np.array_equal(with_centre[1:], expected)
 
 
 def test_route_frame_kernel_gives_the_numpy_numbers(monkeypatch):

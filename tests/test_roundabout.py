@@ -113,6 +113,27 @@ def test_features_observation_lists_the_nearest_road_users(env210):
     np.testing.assert_allclose(distances, nearest, atol=1e-3)
 
 
+def test_features_observation_is_the_state_after_the_step(env210):
+    """The ego vector and the road users' relative velocities use the pose and velocity read after the step
+    (kept from `_update_ego`): they equal a fresh read of the chassis."""
+    env = env210
+    env.reset()
+    task, data = env.task, env.physics.raw_data
+    for k in range(12):
+        obs = env.step(np.array([0.6, 0.2 if k < 6 else -0.2, 0.0])).observation
+        vx, vy = task.vehicle.velocity_body(data)
+        x, y, yaw = task.vehicle.pose(data)
+        assert obs["ego"][4:].tolist() == np.array([np.cos(yaw), np.sin(yaw)], np.float32).tolist()
+        users, traffic = obs["road_users"], task.traffic
+        present = np.flatnonzero(traffic.present)
+        nearest = present[np.argsort(np.hypot(*(traffic.positions()[present] - (x, y)).T), kind="stable")[:8]]
+        dyaw = traffic.yaws()[nearest] - yaw
+        expected = np.stack([traffic.speeds()[nearest] * np.cos(dyaw) - vx,
+                             traffic.speeds()[nearest] * np.sin(dyaw) - vy], 1).astype(np.float32)
+        np.testing.assert_allclose(users[:, 3:5], expected, atol=1e-5)
+    assert abs(vy) > 1e-3  # the car turned: a stale or swapped lateral velocity would show
+
+
 def test_ego_hitting_a_traffic_car_is_a_real_contact_and_ends_the_episode(env210):
     env = env210
     env.reset()

@@ -243,10 +243,12 @@ class RoundaboutTask(DrivingTask):
 
     def _update_ego(self, physics: Physics) -> None:
         data = physics.raw_data
-        x, y, yaw, self.speed, _, self.yaw_rate = self.read_chassis(data)  # [m/s], [rad/s]
+        x, y, yaw, self.speed, self._left, self.yaw_rate = self.read_chassis(data)  # [m/s], [rad/s]
         self.xy, self.yaw = np.array([x, y]), yaw
-        self.corners = footprint(x, y, yaw, self.params.length, self.params.width)  # (4,2) [m]
-        s, d = self.route_frame(np.vstack([self.xy[None], self.corners]))
+        self._yaw_cos_sin = np.cos(yaw), np.sin(yaw)  # numpy's, for the footprint and the observation
+        points = footprint(x, y, yaw, self.params.length, self.params.width, centre=True, cos_sin=self._yaw_cos_sin)
+        self.corners = points[1:]  # (4,2) [m]
+        s, d = self.route_frame(points)
         self.route_s, self.lane_offset = float(s[0]), float(d[0])  # [m]
         self.corner_offsets = d[1:]  # [m] of the footprint corners from the route centre line
         self._frame_time = data.time
@@ -330,7 +332,7 @@ class RoundaboutTask(DrivingTask):
         `frame=None`: the task's `destination_frame`."""
         destination = (self.destination - self.xy).astype(np.float32)
         if (frame or self.destination_frame) == "ego":
-            c, s = np.cos(self.yaw), np.sin(self.yaw)
+            c, s = self._yaw_cos_sin
             destination = np.array([c * destination[0] + s * destination[1],
                                     -s * destination[0] + c * destination[1]], np.float32)
         return destination
@@ -363,7 +365,7 @@ class RoundaboutTask(DrivingTask):
 
     def _ego_vector(self) -> np.ndarray:
         """(6,) speed [m/s], yaw rate [rad/s], heading error [rad], lateral offset [m], cos/sin(yaw)."""
-        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        c, s = self._yaw_cos_sin
         return np.array([self.speed, self.yaw_rate, self.heading_error, self.lane_offset, c, s], np.float32)
 
     def _nearest_road_users(self, physics: Physics) -> np.ndarray:
@@ -373,8 +375,8 @@ class RoundaboutTask(DrivingTask):
         present = np.flatnonzero(traffic.present)
         if not len(present) or not self.neighbours:
             return out
-        c, s = np.cos(self.yaw), np.sin(self.yaw)
-        vx, vy = self.vehicle.velocity_body(physics.raw_data)
+        c, s = self._yaw_cos_sin
+        vx, vy = self.speed, self._left  # `Vehicle.velocity_body`'s numbers, read with the pose
         if KERNELS:  # the same rows in one compiled pass
             dyaw = traffic.yaws() - self.yaw
             kernels.road_user_rows(out, traffic.positions(), present, float(self.xy[0]), float(self.xy[1]), float(c),
