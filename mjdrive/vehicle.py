@@ -16,6 +16,7 @@ import mujoco
 import numpy as np
 
 from mjdrive.assets import XML_DIR
+from mjdrive.compiled import inline
 
 WHEELS = ("fl", "fr", "rl", "rr")  # order of every per-wheel array
 BRAKE_HOLD_SPEED = 0.25  # [m/s] below this speed the brakes act as a stiff damper that holds the car
@@ -132,6 +133,21 @@ def commands_to_ctrl(commands: np.ndarray, params: VehicleParams, speed: np.ndar
     return out
 
 
+@inline
+def chassis_state(px: float, py: float, w: float, x: float, y: float, z: float, vx: float, vy: float, vz: float,
+                  wx: float, wy: float, wz: float) -> tuple[float, float, float, float, float, float]:
+    """`Vehicle.planar_state` from the free joint's position (px, py) [m], orientation (w, x, y, z), world velocity
+    (vx, vy, vz) [m/s] and body angular velocity (wx, wy, wz) [rad/s] (inlined into the tasks' kernels)."""
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    forward = (1.0 - 2.0 * (y * y + z * z)) * vx + 2.0 * (x * y + w * z) * vy + 2.0 * (x * z - w * y) * vz
+    left = 2.0 * (x * y - w * z) * vx + (1.0 - 2.0 * (x * x + z * z)) * vy + 2.0 * (y * z + w * x) * vz
+    yaw_rate = 2.0 * (x * z - w * y) * wx + 2.0 * (y * z + w * x) * wy + (1.0 - 2.0 * (x * x + y * y)) * wz
+    return px, py, yaw, forward, left, yaw_rate
+
+
+_chassis_state = getattr(chassis_state, "py_func", chassis_state)  # plain Python on the Python path (no dispatch)
+
+
 class Vehicle:
     """One car in a compiled model, found by its name prefix; `model_name` None infers it from the mass.
     Ids are looked up once here; the per-step methods only index `data` (no name look-ups)."""
@@ -171,6 +187,11 @@ class Vehicle:
         contiguous = bool(len(ids)) and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids)))
         self._ctrl_rows = slice(int(ids[0]), int(ids[0]) + len(ids)) if contiguous else ids
         self._model = model
+
+    @property
+    def state_addresses(self) -> tuple[int, int]:
+        """(qpos, qvel) addresses of the chassis' free joint: x y z qw qx qy qz and v (world) w (body)."""
+        return self._q, self._v
 
     # --- commands ---------------------------------------------------------------------------------------
     def commands_to_ctrl(self, commands: np.ndarray, speed: np.ndarray | float) -> np.ndarray:
@@ -219,11 +240,7 @@ class Vehicle:
         a, b = self._q, self._v
         px, py, _, w, x, y, z = data.qpos[a : a + 7].tolist()  # Python floats, read at once
         vx, vy, vz, wx, wy, wz = data.qvel[b : b + 6].tolist()
-        yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-        forward = (1.0 - 2.0 * (y * y + z * z)) * vx + 2.0 * (x * y + w * z) * vy + 2.0 * (x * z - w * y) * vz
-        left = 2.0 * (x * y - w * z) * vx + (1.0 - 2.0 * (x * x + z * z)) * vy + 2.0 * (y * z + w * x) * vz
-        yaw_rate = 2.0 * (x * z - w * y) * wx + 2.0 * (y * z + w * x) * wy + (1.0 - 2.0 * (x * x + y * y)) * wz
-        return px, py, yaw, forward, left, yaw_rate
+        return _chassis_state(px, py, w, x, y, z, vx, vy, vz, wx, wy, wz)
 
     def speed(self, data: mujoco.MjData) -> float:
         """Signed longitudinal speed [m/s] (negative when rolling backwards)."""

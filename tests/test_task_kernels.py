@@ -82,3 +82,51 @@ def test_observation_kernels_keep_numpy_order_on_ties(monkeypatch, task_id):
         assert rows[4, 1] == 1.0 and rows[4, 2] == 1.0, rows
     traffic.active[:] = False  # no vehicle in the world (pedestrians stay present by definition)
     _both_ways(monkeypatch, task, dm_env.physics)
+
+
+_EGO_FIELDS = ("speed", "yaw_rate", "yaw", "route_s", "lane_offset", "heading_error", "scenario", "_chassis")
+
+
+def _ego_update_both_ways(monkeypatch, task, physics) -> dict:
+    """The urban task's ego update with the numpy code and with the kernel, from the same route-frame window;
+    asserts the same state, bit for bit (floats compared as their hex), returns it."""
+    module = sys.modules[type(task).__module__]
+    frame, states = task.route_frame, []
+    segment = frame.segment
+    for kernels_on in (False, True):
+        monkeypatch.setattr(module, "KERNELS", kernels_on)
+        frame.segment = segment
+        task._update_ego(physics)
+        state = {name: getattr(task, name) for name in _EGO_FIELDS}
+        state["xy"], state["segment"] = task.xy.tolist(), frame.segment
+        states.append({k: tuple(map(float.hex, v)) if isinstance(v, tuple) else
+                       [float.hex(u) for u in v] if isinstance(v, list) else
+                       float.hex(v) if isinstance(v, float) else v for k, v in state.items()})
+    assert states[1] == states[0]
+    return states[1]
+
+
+@pytest.mark.parametrize("task_id, steps", [("urban/concatenated", 900), ("urban/lane_change", 200)])
+def test_urban_ego_kernel_matches_numpy(monkeypatch, task_id, steps):
+    """`UrbanTask._update_ego` in one kernel (chassis state, route coordinates, scenario, heading error) gives the
+    numpy code's state at every step of autopilot episodes, in every scenario, and off the route."""
+    env = make_env(*task_id.split("/"), random=3)
+    dm_env = env.unwrapped.dm_env
+    task, physics = dm_env.task, dm_env.physics
+    act = make_policy("autopilot", env, 3)
+    observation, _ = env.reset(seed=3)
+    scenarios = set()
+    for _ in range(steps):
+        observation, _, terminated, truncated, info = env.step(act(observation))
+        scenarios.add(_ego_update_both_ways(monkeypatch, task, physics)["scenario"])
+        if terminated or truncated:
+            observation, _ = env.reset()
+    if task_id == "urban/concatenated":
+        assert scenarios >= {"follow", "roundabout", "lane_change"}, scenarios
+    # off the route and turned round: a large heading error (wrapped) and a lateral offset
+    data = physics.raw_data
+    qa, _ = task.vehicle.state_addresses
+    data.qpos[qa:qa + 2] += (0.0, 3.5)
+    data.qpos[qa + 3:qa + 7] = (np.cos(1.6), 0.0, 0.0, np.sin(1.6))  # yaw 3.2 rad
+    state = _ego_update_both_ways(monkeypatch, task, physics)
+    assert abs(float.fromhex(state["heading_error"])) > 2.5 and abs(float.fromhex(state["lane_offset"])) > 2.0

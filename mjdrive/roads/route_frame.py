@@ -32,10 +32,14 @@ class RouteFrame:
         self.segment = 0
         announce_compilation()
 
+    def window(self) -> tuple[int, int]:
+        """The segments lo..hi searched next: those near the last point's segment."""
+        n = len(self.x0)
+        return max(self.segment + self.WINDOW[0], 0), min(self.segment + self.WINDOW[1], n)
+
     def __call__(self, points: np.ndarray, full: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """(s, d) arrays (K,) for points (K,2); the first point moves the search window."""
-        n = len(self.x0)
-        lo, hi = (0, n) if full else (max(self.segment + self.WINDOW[0], 0), min(self.segment + self.WINDOW[1], n))
+        lo, hi = (0, len(self.x0)) if full else self.window()
         if KERNELS:  # the same numbers in one compiled pass
             s, d, self.segment = _project(np.ascontiguousarray(points, dtype=np.float64), self.x0, self.y0, self.tx,
                                           self.ty, self.length, self.s0, lo, hi)
@@ -57,17 +61,17 @@ class RouteFrame:
         if not KERNELS:
             s, d = self(np.array([[x, y]], dtype=np.float64))
             return float(s[0]), float(d[0])
-        n = len(self.x0)
-        lo, hi = max(self.segment + self.WINDOW[0], 0), min(self.segment + self.WINDOW[1], n)
-        s, d, segment = _nearest(float(x), float(y), self.x0, self.y0, self.tx, self.ty, self.length, self.s0, lo, hi)
+        lo, hi = self.window()
+        s, d, segment = nearest_on_segments(float(x), float(y), self.x0, self.y0, self.tx, self.ty, self.length,
+                                            self.s0, lo, hi)
         self.segment = int(segment)
         return float(s), float(d)
 
 
 @inline
-def _nearest(x, y, x0, y0, tx, ty, length, s0, lo, hi):
+def nearest_on_segments(x, y, x0, y0, tx, ty, length, s0, lo, hi):
     """(s, d) [m] of the point (x, y) on its nearest of the segments lo..hi (the first of equally near ones), and
-    that segment: inlined into `_project`, called from Python by `RouteFrame.point`."""
+    that segment: inlined into `_project` and the tasks' kernels, called from Python by `RouteFrame.point`."""
     best, best_j, best_along, best_side = np.inf, -1, 0.0, 0.0
     for j in range(lo, hi):
         px, py = x - x0[j], y - y0[j]
@@ -90,7 +94,7 @@ def _project(points, x0, y0, tx, ty, length, s0, lo, hi):
     d = np.empty(n_k)
     first = lo
     for k in range(n_k):
-        s[k], d[k], j = _nearest(points[k, 0], points[k, 1], x0, y0, tx, ty, length, s0, lo, hi)
+        s[k], d[k], j = nearest_on_segments(points[k, 0], points[k, 1], x0, y0, tx, ty, length, s0, lo, hi)
         if k == 0:
             first = j
     return s, d, first

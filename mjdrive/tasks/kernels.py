@@ -1,4 +1,5 @@
-"""Compiled parts of the tasks' observations (numba, `mjdrive.compiled`): the nearest road users' rows.
+"""Compiled parts of the tasks' per-step work (numba, `mjdrive.compiled`): the nearest road users' rows, the urban
+task's ego update and features.
 
 Each kernel repeats the numpy code of its task operation for operation (the tasks keep that code, which runs
 without numba; tests/test_task_kernels.py holds the two to the same bits). Sines and cosines stay in numpy,
@@ -8,9 +9,13 @@ vectorised version in numpy (libm's in both).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from mjdrive.compiled import jit
+from mjdrive.compiled import inline, jit
+from mjdrive.roads.route_frame import nearest_on_segments
+from mjdrive.vehicle import chassis_state
 
 
 @jit
@@ -74,3 +79,54 @@ def road_user_rows(out: np.ndarray, positions: np.ndarray, present: np.ndarray, 
         out[r, 8] = lengths[i, 1]
         for m in range(kind_onehot.shape[1]):
             out[r, 9 + m] = kind_onehot[i, m]
+
+
+@jit
+def urban_ego(qpos: np.ndarray, qvel: np.ndarray, qa: int, va: int, x0: np.ndarray, y0: np.ndarray, tx: np.ndarray,
+              ty: np.ndarray, length: np.ndarray, s0: np.ndarray, lo: int, hi: int, starts: np.ndarray,
+              ends: np.ndarray):
+    """The urban task's ego update in one pass: `Vehicle.planar_state` of the free joint at qpos[qa], qvel[va];
+    `RouteFrame.point` on its segments lo..hi (x0 ... s0); the tactical interval [starts, ends) [m] holding the
+    route position (-1: none); the heading error [rad] to the route segment, wrapped as `wrap_angle` wraps a float.
+    Returns (x, y, yaw, forward, left, yaw rate, s, d, segment, interval, heading error)."""
+    px, py, yaw, forward, left, yaw_rate = chassis_state(
+        qpos[qa], qpos[qa + 1], qpos[qa + 3], qpos[qa + 4], qpos[qa + 5], qpos[qa + 6],
+        qvel[va], qvel[va + 1], qvel[va + 2], qvel[va + 3], qvel[va + 4], qvel[va + 5])
+    s, d, segment = nearest_on_segments(px, py, x0, y0, tx, ty, length, s0, lo, hi)
+    k = np.searchsorted(starts, s, side="right") - 1
+    interval = k if k >= 0 and s < ends[k] else -1
+    error = yaw - math.atan2(ty[segment], tx[segment])
+    error = (error + math.pi) % (2 * math.pi) - math.pi
+    return px, py, yaw, forward, left, yaw_rate, s, d, segment, interval, error
+
+
+@inline
+def _unit(v: float) -> float:
+    """min(max(v, 0.0), 1.0) as Python evaluates it (NaN and -0.0 kept)."""
+    if 0.0 > v:
+        v = 0.0
+    if 1.0 < v:
+        v = 1.0
+    return v
+
+
+@jit
+def urban_features(ego: np.ndarray, adversaries: np.ndarray, speed: float, heading_error: float, lane_offset: float,
+                   route_s: float, off_route: float, route_end: float, speed_scale: float, scenario: int,
+                   at_ego: bool, point_s: np.ndarray, point_scenario: np.ndarray, points: np.ndarray, x: float,
+                   y: float, present: np.ndarray, positions: np.ndarray, speeds: np.ndarray,
+                   intentions: np.ndarray, column: int, distance_scale: float) -> None:
+    """The urban task's `_ego_vector` into `ego` (4,) float32 and `adversary_matrix` into `adversaries` (n, 4)
+    float32 (zeros): distances from the first conflict point (points (C, 2) [m] at route position point_s [m]) of
+    the active scenario no more than 2 m behind the ego, or from the ego (x, y) [m] (`at_ego`, or none)."""
+    ego[0] = _unit(speed / speed_scale)
+    ego[1] = _unit((heading_error + math.pi) / (2 * math.pi))
+    ego[2] = _unit((lane_offset / off_route + 1.0) / 2.0)
+    ego[3] = _unit(route_s / route_end)
+    px, py = x, y
+    if not at_ego:
+        for j in range(point_s.shape[0]):
+            if point_s[j] >= route_s - 2.0 and point_scenario[j] == scenario:
+                px, py = points[j, 0], points[j, 1]
+                break
+    adversary_rows(adversaries, present, positions, px, py, speeds, intentions, column, distance_scale, speed_scale)

@@ -61,6 +61,8 @@ CONTROL_TIMESTEP = 0.1  # [s] 10 Hz
 SCENARIOS = (FOLLOW, "roundabout", "lane_change", "crossroad", "merge")  # the scenario one-hot, in order
 _SCENARIO_ONE_HOT = {name: np.eye(len(SCENARIOS), dtype=np.float32)[i] for i, name in enumerate(SCENARIOS)}
 _NO_INTENTIONS = np.zeros((0, len(INTENTION_SCENARIOS)), np.int64)  # the adversary rows' outside intention scenarios
+_SCENARIO_CODE = {name: i for i, name in enumerate(SCENARIOS)}
+_INTENTION_COLUMN = {name: i for i, name in enumerate(INTENTION_SCENARIOS)}  # the intentions' column by scenario
 PIECES = {"roundabout": ("roundabout",), "lane_change": ("road",), "crossroad": ("crossroad",),
           "merge": ("merge",), "concatenated": ("roundabout", "road", "crossroad", "merge")}
 SPEED_SCALE = 15.0  # [m/s] speeds normalised by this (§5.3's top speed)
@@ -119,6 +121,12 @@ class UrbanTask(DrivingTask):
         self._points = np.asarray(route.conflicts.point)[rc.zone] if len(rc) else np.zeros((0, 2))
         self._point_s = np.asarray(rc.s_point, dtype=float)
         self._point_scenario = np.array([route.tactical.scenario_at(s) for s in self._point_s])
+        # for the kernels: the tactical intervals as arrays, scenarios as their index in SCENARIOS
+        intervals = route.tactical.intervals
+        self._interval_starts = np.array([s0 for _, s0, _ in intervals], dtype=float)  # [m]
+        self._interval_ends = np.array([s1 for _, _, s1 in intervals], dtype=float)  # [m]
+        self._interval_names = [name for name, _, _ in intervals] + [FOLLOW]  # index -1: outside every interval
+        self._point_code = np.array([SCENARIOS.index(name) for name in self._point_scenario], dtype=np.int64)
 
     # --- episode ----------------------------------------------------------------------------------------
     def initialize_episode(self, physics: Physics) -> None:
@@ -163,6 +171,18 @@ class UrbanTask(DrivingTask):
         return EgoState(x, y, yaw, speed, self.params.length, self.params.width, path, s_lane)
 
     def _update_ego(self, physics: Physics) -> None:
+        if KERNELS:  # the same numbers in one compiled pass
+            data, frame = physics.raw_data, self.route_frame
+            lo, hi = frame.window()
+            qa, va = self.vehicle.state_addresses
+            (x, y, yaw, self.speed, left, self.yaw_rate, self.route_s, self.lane_offset, frame.segment, k,
+             self.heading_error) = kernels.urban_ego(data.qpos, data.qvel, qa, va, frame.x0, frame.y0, frame.tx,
+                                                     frame.ty, frame.length, frame.s0, lo, hi,
+                                                     self._interval_starts, self._interval_ends)
+            self._chassis = yaw, self.speed, left  # `read_chassis`' hand-over to the comfort sample
+            self.xy, self.yaw = np.array([x, y]), yaw
+            self.scenario = self._interval_names[k]
+            return
         x, y, yaw, self.speed, _, self.yaw_rate = self.read_chassis(physics.raw_data)
         self.xy, self.yaw = np.array([x, y]), yaw
         self.route_s, self.lane_offset = self.route_frame.point(x, y)  # [m]
@@ -267,6 +287,20 @@ class UrbanTask(DrivingTask):
         return out
 
     def get_observation(self, physics: Physics) -> collections.OrderedDict:
+        if self.observation != "camera" and KERNELS:  # the same features in one compiled pass
+            rows = np.zeros((self.config.adversaries, ADVERSARY_COLUMNS), np.float32)
+            obs = collections.OrderedDict(ego=np.empty(4, np.float32), scenario=_SCENARIO_ONE_HOT[self.scenario].copy(),
+                                          adversaries=rows)
+            traffic, scenario = self.traffic, self.scenario
+            column = _INTENTION_COLUMN.get(scenario, -1)
+            kernels.urban_features(obs["ego"], obs["adversaries"], self.speed, self.heading_error, self.lane_offset,
+                                   self.route_s, self.config.off_route, self.route_end, SPEED_SCALE,
+                                   _SCENARIO_CODE[scenario], scenario in (FOLLOW, "lane_change"), self._point_s,
+                                   self._point_code, self._points, float(self.xy[0]), float(self.xy[1]),
+                                   traffic.present, traffic.positions(), traffic.speeds(),
+                                   traffic.intentions() if column >= 0 else _NO_INTENTIONS, column, DISTANCE_SCALE)
+            obs.update(self.sensor_observation(physics))
+            return obs
         ego = self._ego_vector()
         if self.observation == "camera":
             size = self.config.image_size
