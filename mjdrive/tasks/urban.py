@@ -134,6 +134,7 @@ class UrbanTask(DrivingTask):
         self.vehicle.reset(physics.raw_data, float(x), float(y), float(self.route_lane.heading(self.start_s)))
         self.route_frame(np.array([[x, y]]), full=True)
         self.route_s, self.lane_offset, self.xy = self.start_s, 0.0, np.array([x, y], dtype=float)
+        self._position = float(x), float(y)  # [m] self.xy as floats
         self._ego_fn = functools.partial(self.ego_state, physics)
         rng = np.random.default_rng(self.random.randint(2**31))
         self.traffic.reset(rng, self.ego_state(physics), warmup=self.config.warmup)
@@ -180,11 +181,11 @@ class UrbanTask(DrivingTask):
                                                      frame.ty, frame.length, frame.s0, lo, hi,
                                                      self._interval_starts, self._interval_ends)
             self._chassis = yaw, self.speed, left  # `read_chassis`' hand-over to the comfort sample
-            self.xy, self.yaw = np.array([x, y]), yaw
+            self.xy, self._position, self.yaw = np.array([x, y]), (x, y), yaw
             self.scenario = self._interval_names[k]
             return
         x, y, yaw, self.speed, _, self.yaw_rate = self.read_chassis(physics.raw_data)
-        self.xy, self.yaw = np.array([x, y]), yaw
+        self.xy, self._position, self.yaw = np.array([x, y]), (x, y), yaw
         self.route_s, self.lane_offset = self.route_frame.point(x, y)  # [m]
         self.scenario = self.urban.tactical.scenario_at(self.route_s)  # the active scenario
         tangent = self.route_frame.tangent[self.route_frame.segment]
@@ -201,7 +202,7 @@ class UrbanTask(DrivingTask):
                          self.traffic.intentions()[self.traffic.present])
 
     def after_step(self, physics: Physics) -> None:
-        previous_xy = self.xy
+        (x0, y0) = self._position
         self._update_ego(physics)
         info = self.info
         collision = self.collision_sensor.collided(physics.raw_data)
@@ -213,12 +214,13 @@ class UrbanTask(DrivingTask):
         info["scenario"] = self.active_scenario()
         info["steps"] += 1
         info["elapsed_time"] = info["steps"] * CONTROL_TIMESTEP
-        info["distance"] += float(np.hypot(self.xy[0] - previous_xy[0], self.xy[1] - previous_xy[1]))
+        x, y = self._position
+        info["distance"] += float(np.hypot(x - x0, y - y0))
         info["average_speed"] = info["distance"] / info["elapsed_time"]
-        terms = {"speed": SPEED_REWARD * self.speed, "arrival": ARRIVAL_REWARD * info["success"],
-                 "collision": COLLISION_REWARD * collision}
-        self.reward_terms = terms
-        self._step_reward = float(sum(terms.values()))
+        speed, arrival = SPEED_REWARD * self.speed, ARRIVAL_REWARD * info["success"]
+        crash = COLLISION_REWARD * collision
+        self.reward_terms = {"speed": speed, "arrival": arrival, "collision": crash}
+        self._step_reward = speed + arrival + crash  # their sum, in this order
         info["episode_reward"] += self._step_reward
         self._ended = collision or arrived or off_route
 
@@ -296,7 +298,7 @@ class UrbanTask(DrivingTask):
             kernels.urban_features(obs["ego"], obs["adversaries"], self.speed, self.heading_error, self.lane_offset,
                                    self.route_s, self.config.off_route, self.route_end, SPEED_SCALE,
                                    _SCENARIO_CODE[scenario], scenario in (FOLLOW, "lane_change"), self._point_s,
-                                   self._point_code, self._points, float(self.xy[0]), float(self.xy[1]),
+                                   self._point_code, self._points, *self._position,
                                    traffic.present, traffic.positions(), traffic.speeds(),
                                    traffic.intentions() if column >= 0 else _NO_INTENTIONS, column, DISTANCE_SCALE)
             obs.update(self.sensor_observation(physics))
