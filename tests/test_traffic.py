@@ -240,3 +240,28 @@ def test_uniform_draws_are_generator_uniform():
             want = expected.uniform(lo, hi) if np.ndim(lo) else expected.uniform(lo, hi, n)
             assert np.array_equal(uniform(got, lo, hi, n), want)
             assert got.bit_generator.state == expected.bit_generator.state
+
+
+def test_advance_writes_each_substep_pose_into_the_data_given():
+    """Every `advance` writes the new poses into the MjData it is given, whichever (kept views are per data),
+    at plan substeps and at decisions alike, as `write` does."""
+    import mujoco
+
+    from mjdrive import suite
+
+    env = suite.load("roundabout", "d120", {"random": 1})
+    env.reset()
+    traffic, model = env.task.traffic, env.physics.raw_model
+    datas = [mujoco.MjData(model), mujoco.MjData(model)]
+    decisions = 0
+    for i in range(3 * traffic.n_plan + 5):
+        data = datas[(i // 4) % 2]  # four substeps into one, then four into the other
+        k = traffic._k
+        traffic.advance(SUBSTEP, None, data)
+        decisions += traffic._k < k
+        expected = mujoco.MjData(model)
+        traffic.write(expected)
+        assert np.array_equal(data.mocap_pos, expected.mocap_pos), i
+        assert np.array_equal(data.mocap_quat, expected.mocap_quat), i
+        assert np.abs(data.mocap_pos - datas[1 - (i // 4) % 2].mocap_pos).max() > 0.0  # the other data is older
+    assert decisions >= 3
