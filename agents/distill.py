@@ -99,8 +99,11 @@ def distill(teacher: str | Path, student_config: dict, out: str | Path, seed: in
                 bar.update(1)
                 if driver == "teacher":
                     action = teacher_agent.actor.to_env(label)[0].numpy()
-                else:
-                    action = student.act(one)[0]
+                else:  # the greedy action through `sample`: its draw advances torch's global generator, which
+                    # the shifts in `_fit` use, as when the published student was distilled
+                    with torch.no_grad():
+                        greedy = actor.sample(actor.encode(ObsBatch.from_numpy(layout, one)))[2]
+                    action = actor.to_env(greedy)[0].numpy()
                 obs, _, terminated, truncated, info = env.step(action)
                 if terminated or truncated:
                     episode += 1

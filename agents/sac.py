@@ -83,6 +83,11 @@ class Actor(nn.Module):
         log_prob = (normal.log_prob(u) - torch.log(1 - a.pow(2) + 1e-6)).sum(-1)
         return a, log_prob, torch.tanh(mean)
 
+    def greedy(self, latent: torch.Tensor) -> torch.Tensor:
+        """The squashed mean in [-1, 1] (`sample`'s third output, without the log-std head, the draw and its
+        log-probability)."""
+        return torch.tanh(self.mean(self.trunk(latent)))
+
     def encode(self, obs: ObsBatch) -> torch.Tensor:
         return self.encoder(obs.features, obs.image)
 
@@ -131,8 +136,9 @@ class SACAgent:
     @torch.no_grad()
     def act(self, obs: dict[str, np.ndarray], deterministic: bool = True) -> np.ndarray:
         """Env actions (N, 3) for batched observations: the squashed mean, or a sample."""
-        a, _, mean = self.actor.sample(self.actor.encode(ObsBatch.from_numpy(self.layout, obs)))
-        return self.actor.to_env(mean if deterministic else a).numpy()
+        latent = self.actor.encode(ObsBatch.from_numpy(self.layout, obs))
+        a = self.actor.greedy(latent) if deterministic else self.actor.sample(latent)[0]
+        return self.actor.to_env(a).numpy()
 
     @torch.no_grad()
     def explore(self, obs: dict[str, np.ndarray], step: int) -> tuple[np.ndarray, np.ndarray]:

@@ -377,6 +377,29 @@ def test_sac_actor_reads_the_critics_encoder_and_only_the_critic_trains_it():
     assert any(not torch.equal(a, b) for a, b in zip(before, agent.critic.encoder.parameters(), strict=True))
 
 
+def test_sac_greedy_action_is_the_squashed_mean_of_the_sampling_path_bit_for_bit():
+    """`act(deterministic=True)` skips the draw and its log-probability; its actions must stay those of
+    `sample`'s third output (the published evaluation tables were made with it)."""
+    from mjdrive.agents.observations import ObsBatch
+
+    config = _config("sac", [])
+    env = BatchedEnv("waypoints", "straight", num_envs=2)
+    agent = agent_class("sac")(config, env.single_observation_space, env.single_action_space)
+    obs, _ = env.reset(seed=3)
+    env.close()
+    with torch.no_grad():
+        for p in agent.actor.parameters():  # away from the initial weights, so the heads' outputs spread
+            p.add_(0.02 * torch.randn(p.shape, generator=torch.Generator().manual_seed(p.numel())))
+        latent = torch.randn(64, agent.actor.encoder.out_dim, generator=torch.Generator().manual_seed(1))
+        greedy = agent.actor.greedy(latent)
+        sampled, _, mean = agent.actor.sample(latent)
+        want = agent.actor.to_env(agent.actor.sample(agent.actor.encode(
+            ObsBatch.from_numpy(agent.layout, obs)))[2]).numpy()
+    assert torch.equal(greedy, mean) and not torch.equal(greedy, sampled)
+    assert greedy.abs().max() < 1 and greedy.std() > 0.05
+    np.testing.assert_array_equal(agent.act(obs, deterministic=True), want)
+
+
 def test_sac_bc_alpha_pulls_the_actor_towards_the_demonstrated_actions():
     """TD3+BC's term: with bc_alpha > 0 the greedy action moves to the demonstrations' actions (the batch rows
     flagged `demonstration`; the others are ignored), without it it need not."""
