@@ -421,3 +421,29 @@ def test_route_frame_kernel_gives_the_numpy_numbers(monkeypatch):
             got_point = kernel_frame.point(x, y)
             assert got_point == expected_point and numpy_frame.segment == kernel_frame.segment
             assert all(type(v) is float for v in (*expected_point, *got_point))
+
+
+def test_lane_one_point_projection_and_curvature_sampling_give_the_numpy_numbers():
+    """One point's lane coordinates (a compiled pass over every segment, with numba) equal the batched numpy
+    projection's bit for bit, ties at the vertices (the first segment wins) and points far off included; and
+    `max_abs_curvature` equals max |curvature| over numpy's linspace (the pure-pursuit driver's comfort speed)."""
+    from mjdrive.roads.junctions import roundabout_routes
+
+    rm = roads.roundabout()
+    routes = list(roundabout_routes(rm).values())[:2]
+    lanes = [*LANES.values(), *(Lane(rm.route_polyline(route), name="route") for route in routes)]
+    rng = np.random.default_rng(4)
+    for lane in lanes:
+        along = lane.position(rng.uniform(-3, lane.length + 3, 150), rng.uniform(-4, 4, 150))
+        vertices = lane.centre[1:-1:7] + lane.normals[1:-1:7] * rng.uniform(-2, 2, (len(lane.centre[1:-1:7]), 1))
+        far = rng.uniform(lane.centre.min(0) - 40, lane.centre.max(0) + 40, (50, 2))
+        points = np.vstack([along + rng.normal(0, 0.5, along.shape), vertices, far])
+        batch_s, batch_d = lane.local_coordinates(points)
+        for point, s, d in zip(points, batch_s, batch_d, strict=True):
+            one = lane.local_coordinates(point)
+            assert one == (s, d) and all(type(v) is float for v in one)
+        for start in [*rng.uniform(-5, lane.length + 5, 100), *lane.s[1:-1:3], 0.0, lane.length, lane.length - 20.0]:
+            for stop in (min(start + 20.0, lane.length), start, start + rng.uniform(0, 30)):
+                expected = float(np.max(np.abs(lane.curvature(np.linspace(start, stop, 8)))))
+                assert lane.max_abs_curvature(start, stop, 8) == expected
+    assert max(lane.max_abs_curvature(0.0, lane.length) for lane in lanes) > 0.01  # the arcs' curvature is seen

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,9 +52,8 @@ class PurePursuit:
 
     def target_speed(self, path: Lane, s: float, cruise: float) -> float:
         """Cruise speed [m/s], lowered so the lateral acceleration over the next 20 m stays comfortable."""
-        ahead = np.linspace(s, min(s + 20.0, path.length), 8)
-        curvature = float(np.max(np.abs(path.curvature(ahead)))) + 1e-6
-        return min(cruise, float(np.sqrt(self.max_lateral_accel / curvature)))
+        curvature = path.max_abs_curvature(s, min(s + 20.0, path.length), 8) + 1e-6  # [1/m]
+        return min(cruise, math.sqrt(self.max_lateral_accel / curvature))
 
     def __call__(self, pose: tuple[float, float, float], speed: float, path: Lane, cruise: float,
                  dt: float) -> np.ndarray:

@@ -13,6 +13,8 @@ import math
 
 import numpy as np
 
+from mjdrive.compiled import jit
+
 P0X, P0Y, TX, TY, DX, DY, N0X, N0Y, DNX, DNY, S0, LEN, HW, H0, DH, LANE = range(16)
 NCOL = 16
 
@@ -54,6 +56,33 @@ def project(table: np.ndarray, x, y) -> tuple[np.ndarray, np.ndarray, np.ndarray
     tc = np.clip((rx * dx + ry * dy) / (table[..., LEN] ** 2), 0.0, 1.0)
     dist = np.where(inside, np.abs(d), np.hypot(rx - tc * dx, ry - tc * dy))
     return t, d, dist, inside
+
+
+@jit
+def nearest_point(table: np.ndarray, x: float, y: float) -> tuple[float, float]:
+    """(s, d) [m] of the point (x, y) on the nearest of all the segment rows of `table` (the first of equally
+    near ones): `project` on every row and the argmin of its dist, operation for operation, in one pass (no
+    (S,) temporaries; compiled with numba)."""
+    best, best_j, best_t, best_d = np.inf, -1, 0.0, 0.0
+    for j in range(table.shape[0]):
+        rx, ry = x - table[j, P0X], y - table[j, P0Y]
+        dx, dy = table[j, DX], table[j, DY]
+        d = table[j, TX] * ry - table[j, TY] * rx
+        ex, ey = dx + d * table[j, DNX], dy + d * table[j, DNY]
+        ee = max(ex * ex + ey * ey, 1e-12)
+        t = ((rx - d * table[j, N0X]) * ex + (ry - d * table[j, N0Y]) * ey) / ee
+        if t >= 0.0 and t <= 1.0 and ex * dx + ey * dy > 0.0:
+            dist = abs(d)
+        else:
+            length = table[j, LEN]
+            tc = min(max((rx * dx + ry * dy) / (length * length), 0.0), 1.0)
+            ax, ay = abs(rx - tc * dx), abs(ry - tc * dy)
+            if ax > best or ay > best:  # hypot >= max(|ax|, |ay|) > best: not nearer (skips the libm call)
+                continue
+            dist = math.hypot(ax, ay)
+        if dist < best or best_j < 0:
+            best, best_j, best_t, best_d = dist, j, t, d
+    return table[best_j, S0] + min(max(best_t, 0.0), 1.0) * table[best_j, LEN], best_d
 
 
 class GridIndex:

@@ -14,6 +14,7 @@ from enum import IntEnum
 import numpy as np
 from numpy.typing import ArrayLike
 
+from mjdrive.compiled import KERNELS, jit
 from mjdrive.roads import _spatial as sp
 from mjdrive.roads.geometry import wrap_angle
 
@@ -124,6 +125,14 @@ class Lane:
         k = self.vertex_curvature
         return k[i] + t * (k[i + 1] - k[i])
 
+    def max_abs_curvature(self, start: float, stop: float, n: int = 8) -> float:
+        """max |curvature| [1/m] at the n evenly spaced arc lengths from `start` to `stop` [m]
+        (`np.max(np.abs(self.curvature(np.linspace(start, stop, n))))`, the same number, in one compiled pass)."""
+        if not KERNELS:
+            return float(np.max(np.abs(self.curvature(np.linspace(start, stop, n)))))
+        return _max_abs_curvature(self.s, self.seg_length, self.vertex_curvature, self.length, float(start),
+                                  float(stop), int(n))
+
     # --- projection --------------------------------------------------------------------------------
     def local_coordinates(self, xy: ArrayLike, near_s: float | None = None, window: float = 25.0):
         """(s, d) [m] of world point(s) xy (2,) or (K,2); s is clamped to [0, length].
@@ -136,6 +145,9 @@ class Lane:
         single = xy.ndim == 1
         if single and near_s is not None:
             return self.frame(xy, near_s, window)[:2]
+        if single and KERNELS:  # the same numbers in one compiled pass
+            s, d = sp.nearest_point(self._table, float(xy[0]), float(xy[1]))
+            return float(s), float(d)
         pts = xy.reshape(-1, 2)
         s_out, d_out = np.empty(len(pts)), np.empty(len(pts))
         chunk = max(1, 2_000_000 // len(self._table))
@@ -190,3 +202,26 @@ def resample(polyline: np.ndarray, step: float = 0.5) -> np.ndarray:
         n = max(1, math.ceil(np.hypot(*(b - a)) / step - 1e-9))
         out.append(a + np.linspace(0, 1, n + 1)[1:, None] * (b - a))
     return np.vstack(out)
+
+
+@jit
+def _max_abs_curvature(s_vertex, seg_length, curvature, length, start, stop, n):
+    """`Lane.max_abs_curvature`: numpy's linspace points (i * step + start, the last one `stop`), each located as
+    `Lane._locate_s` does and interpolated as `Lane.curvature`, operation for operation."""
+    step = (stop - start) / (n - 1) if n > 1 else 0.0
+    last = len(s_vertex) - 2
+    best = 0.0
+    for k in range(n):
+        if n > 1 and k == n - 1:
+            s = stop
+        elif step == 0.0:
+            s = k / (n - 1) * (stop - start) + start if n > 1 else start
+        else:
+            s = k * step + start
+        sc = min(max(s, 0.0), length)
+        i = min(max(np.searchsorted(s_vertex, sc, side="right") - 1, 0), last)
+        t = (sc - s_vertex[i]) / seg_length[i]
+        value = abs(curvature[i] + t * (curvature[i + 1] - curvature[i]))
+        if value > best:
+            best = value
+    return best
