@@ -1,7 +1,8 @@
 """`python -m mjdrive.envs.compile_kernels`: compile every numba kernel into the on-disk cache once (`make install`
 runs it), so that no env or worker pays the compilation later: the traffic's and the route frame's
 (`mjdrive.traffic.compile_kernels`), then the tasks' observations, by stepping a roundabout env (with
-pedestrians) and the concatenated urban route. Prints where the cache is and how long it took."""
+pedestrians) and the concatenated urban route, and the scripted drivers' lane kernels on their routes. Prints
+where the cache is and how long it took."""
 
 from __future__ import annotations
 
@@ -28,6 +29,9 @@ def compile_kernels() -> float:
         env.reset()
         for _ in range(WARM_STEPS):
             env.step(np.array([0.3, 0.0, 0.0]))
+        route = env.task.route_lane  # the scripted drivers' lane kernels
+        route.local_coordinates(route.centre[3])
+        route.max_abs_curvature(0.0, 20.0)
         env.close()
     return time.perf_counter() - start
 
