@@ -18,6 +18,7 @@ import numpy as np
 from mjdrive import suite
 from mjdrive.control.autopilot import Autopilot
 from mjdrive.tasks.roundabout import DENSITIES
+from mjdrive.world import PHYSICS_TIMESTEP
 
 COLUMNS = ("episode_reward", "elapsed_time", "average_speed", "distance", "steps")
 
@@ -56,7 +57,8 @@ def main(argv: list[str] | None = None) -> int:
         + (f" --out {args.out}`" if args.out else "`"),
         "",
         f"{args.episodes} episodes per density and policy (task seed {args.seed}; the same episodes for both "
-        "policies), features observation, sedan, 5 Hz. Columns as the study's Table 3; time, speed and "
+        f"policies), features observation, sedan, 5 Hz control, {1e3 * PHYSICS_TIMESTEP:g} ms physics step (the "
+        "default). Columns as the study's Table 3; time, speed and "
         "distance are means over all episodes.",
         "",
         "| policy | density | avg reward | avg time [s] | avg speed [m/s] | avg distance [m] | avg steps "
