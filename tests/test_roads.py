@@ -423,10 +423,11 @@ def test_route_frame_kernel_gives_the_numpy_numbers(monkeypatch):
             assert all(type(v) is float for v in (*expected_point, *got_point))
 
 
-def test_lane_one_point_projection_and_curvature_sampling_give_the_numpy_numbers():
+def test_lane_one_point_projection_point_and_curvature_sampling_give_the_numpy_numbers():
     """One point's lane coordinates (a compiled pass over every segment, with numba) equal the batched numpy
-    projection's bit for bit, ties at the vertices (the first segment wins) and points far off included; and
-    `max_abs_curvature` equals max |curvature| over numpy's linspace (the pure-pursuit driver's comfort speed)."""
+    projection's bit for bit, ties at the vertices (the first segment wins) and points far off included; `point`
+    equals `position` and `max_abs_curvature` max |curvature| over numpy's linspace (the pure-pursuit driver's
+    look-ahead point and comfort speed)."""
     from mjdrive.roads.junctions import roundabout_routes
 
     rm = roads.roundabout()
@@ -442,6 +443,10 @@ def test_lane_one_point_projection_and_curvature_sampling_give_the_numpy_numbers
         for point, s, d in zip(points, batch_s, batch_d, strict=True):
             one = lane.local_coordinates(point)
             assert one == (s, d) and all(type(v) is float for v in one)
+        for s in [*rng.uniform(-2, lane.length + 2, 200), *lane.s, 0.0, lane.length]:  # `point`: position's floats
+            x, y = lane.position(s).tolist()
+            got = lane.point(s)
+            assert got == (x, y) and [math.copysign(1, v) for v in got] == [math.copysign(1, x), math.copysign(1, y)]
         for start in [*rng.uniform(-5, lane.length + 5, 100), *lane.s[1:-1:3], 0.0, lane.length, lane.length - 20.0]:
             for stop in (min(start + 20.0, lane.length), start, start + rng.uniform(0, 30)):
                 expected = float(np.max(np.abs(lane.curvature(np.linspace(start, stop, 8)))))

@@ -27,9 +27,9 @@ class SpeedController:
         error = target - speed
         if error < -0.5:  # too fast: brake, and forget the integral
             self.integral = 0.0
-            return 0.0, float(np.clip(-error * self.brake_gain, 0.0, 1.0))
-        self.integral = float(np.clip(self.integral + error * dt, -2.0, 10.0))
-        return float(np.clip(self.kp * error + self.ki * self.integral, 0.0, 1.0)), 0.0
+            return 0.0, float(min(max(-error * self.brake_gain, 0.0), 1.0))  # np.clip's numbers, without its call
+        self.integral = float(min(max(self.integral + error * dt, -2.0), 10.0))
+        return float(min(max(self.kp * error + self.ki * self.integral, 0.0), 1.0)), 0.0
 
 
 @dataclass
@@ -59,14 +59,14 @@ class PurePursuit:
                  dt: float) -> np.ndarray:
         """(throttle, steer, brake) for the car at `pose` (x, y, yaw) [m, m, rad] going `speed` [m/s]."""
         x, y, yaw = pose
-        rear = np.array([x - 0.5 * self.wheelbase * np.cos(yaw), y - 0.5 * self.wheelbase * np.sin(yaw)])
-        s, _ = path.local_coordinates(rear)
+        rear_x, rear_y = x - 0.5 * self.wheelbase * np.cos(yaw), y - 0.5 * self.wheelbase * np.sin(yaw)  # [m]
+        s, _ = path.local_coordinates(np.array([rear_x, rear_y]))
         lookahead = self.lookahead_min + self.lookahead_gain * max(speed, 0.0)
-        target = path.position(min(float(s) + lookahead, path.length))
-        alpha = np.arctan2(target[1] - rear[1], target[0] - rear[0]) - yaw
-        distance = max(float(np.hypot(*(target - rear))), 1e-3)
+        target_x, target_y = path.point(min(float(s) + lookahead, path.length))
+        alpha = np.arctan2(target_y - rear_y, target_x - rear_x) - yaw
+        distance = max(float(np.hypot(target_x - rear_x, target_y - rear_y)), 1e-3)
         delta = np.arctan2(2.0 * self.wheelbase * np.sin(alpha), distance)
-        steer = float(np.clip(delta / self.max_steer, -1.0, 1.0))
+        steer = float(min(max(delta / self.max_steer, -1.0), 1.0))
         remaining = path.length - float(s)
         target_speed = self.target_speed(path, float(s), cruise) if remaining > 3.0 else 0.0
         throttle, brake = self.speed(speed, target_speed, dt)

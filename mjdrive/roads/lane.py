@@ -113,6 +113,14 @@ class Lane:
             p = p + over * np.concatenate([np.cos(h), np.sin(h)], axis=-1)
         return p
 
+    def point(self, s: float) -> tuple[float, float]:
+        """The centre-line point (x, y) [m] at arc length s [m], as floats: `position(s)`'s numbers (in one compiled
+        pass within [0, length], with numba)."""
+        if KERNELS and 0.0 <= s <= self.length:
+            return _centre_point(self.s, self.seg_length, self.centre, self.normals, float(s))
+        x, y = self.position(s).tolist()
+        return x, y
+
     def heading(self, s: ArrayLike):
         """Direction of travel [rad] in [-pi, pi) at arc length s [m] (interpolated vertex headings)."""
         _, _, i, t = self._locate_s(s)
@@ -225,3 +233,16 @@ def _max_abs_curvature(s_vertex, seg_length, curvature, length, start, stop, n):
         if value > best:
             best = value
     return best
+
+
+@jit
+def _centre_point(s_vertex, seg_length, centre, normals, s):
+    """`Lane.point` for s in [0, length]: `Lane._locate_s` and `Lane.position` at d = 0, operation for operation
+    (the zero offset along the interpolated normal included)."""
+    i = min(max(np.searchsorted(s_vertex, s, side="right") - 1, 0), len(s_vertex) - 2)
+    t = (s - s_vertex[i]) / seg_length[i]
+    nx = normals[i, 0] + t * (normals[i + 1, 0] - normals[i, 0])
+    ny = normals[i, 1] + t * (normals[i + 1, 1] - normals[i, 1])
+    x = centre[i, 0] + t * (centre[i + 1, 0] - centre[i, 0]) + 0.0 * nx
+    y = centre[i, 1] + t * (centre[i + 1, 1] - centre[i, 1]) + 0.0 * ny
+    return x, y
