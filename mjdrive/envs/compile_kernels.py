@@ -32,6 +32,7 @@ def compile_kernels() -> float:
         route = env.task.route_lane  # the scripted drivers' lane kernels
         route.local_coordinates(route.centre[3])
         route.max_abs_curvature(0.0, 20.0)
+        route.point(1.0)
         env.close()
     return time.perf_counter() - start
 
