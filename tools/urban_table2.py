@@ -69,6 +69,9 @@ def run(task: str, policy: str, episodes: int, seed: int, workers: int = 0, ray:
               f"({time.perf_counter() - start:.0f} s)", file=sys.stderr, flush=True)
 
     rows = fan_out(episode, (task, policy, seed), range(episodes), workers=workers, ray=ray, on_result=report)
+    for env in _ENVS.values():  # this process's (when the episodes ran here); workers' go with them
+        env.close()
+    _ENVS.clear()
     return [rows[i] for i in range(episodes)]
 
 
