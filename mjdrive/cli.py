@@ -7,6 +7,7 @@ import json
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -543,21 +544,28 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run a subcommand. A user's mistake (a bad name, number, keyword, path or file) prints one line and
-    exits with status 2; set MJDRIVE_DEBUG=1 to see the traceback instead."""
-    args = build_parser().parse_args(argv)
+def run_reporting_errors(prog: str, func: Callable[[], int | None]) -> int:
+    """`func()`'s exit status; a user's mistake (a bad name, number, keyword, path or file: ValueError, OSError)
+    prints one line `PROG: error: ...` and gives status 2 (MJDRIVE_DEBUG=1: the traceback instead), Ctrl-C 130.
+    The `mjdrive` subcommands and the study tools (`python -m tools.NAME`) run through it."""
     try:
-        return args.func(args)
+        return func() or 0
     except (ValueError, OSError) as error:  # bad names, keywords, files: a clear message, no traceback
         if os.environ.get("MJDRIVE_DEBUG"):
             raise
         message = " ".join(str(error).split()) or type(error).__name__
-        print(f"mjdrive {args.command}: error: {message}", file=sys.stderr)
+        print(f"{prog}: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"mjdrive {args.command}: interrupted", file=sys.stderr)
+        print(f"{prog}: interrupted", file=sys.stderr)
         return 130
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run a subcommand. A user's mistake (a bad name, number, keyword, path or file) prints one line and
+    exits with status 2; set MJDRIVE_DEBUG=1 to see the traceback instead."""
+    args = build_parser().parse_args(argv)
+    return run_reporting_errors(f"mjdrive {args.command}", lambda: args.func(args))
 
 
 if __name__ == "__main__":

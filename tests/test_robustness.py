@@ -37,3 +37,15 @@ def test_a_user_mistake_prints_one_line_in_a_real_process(tmp_path):
         assert done.returncode == 2, (argv, done.stderr)
         assert len(done.stderr.strip().splitlines()) == 1 and "Traceback" not in done.stderr, done.stderr
         assert done.stderr.startswith(f"mjdrive {argv[0]}: error: ")
+
+
+def test_a_study_tool_reports_a_user_mistake_in_one_line_in_a_real_process(tmp_path):
+    """`python -m tools.NAME` as a user runs it (from the repository): a missing checkpoint and a bad count each
+    give one line on stderr naming the tool, exit status 2, no traceback."""
+    for argv in (["roundabout_table3", "--episodes", "1", "--agent", "A", str(tmp_path / "missing.pt")],
+                 ["urban_table2", "--episodes", "0"]):
+        done = subprocess.run([sys.executable, "-m", f"tools.{argv[0]}", *argv[1:]], capture_output=True, text=True,
+                              cwd=ROOT, timeout=120)
+        assert done.returncode == 2, (argv, done.stderr)
+        assert len(done.stderr.strip().splitlines()) == 1 and "Traceback" not in done.stderr, done.stderr
+        assert done.stderr.startswith(f"{argv[0]}.py: error: "), done.stderr

@@ -6,24 +6,25 @@ frame frozen; the scalar observations (d, θ, v or the destination) are left as 
 
 from __future__ import annotations
 
-import argparse
 import sys
+from pathlib import Path
 
 import numpy as np
 import torch
 
 from mjdrive.agents.evaluate import load_agent
+from mjdrive.cli import ArgumentParser, int_at_least, run_reporting_errors
 from mjdrive.envs import make_env
 from mjdrive.envs.batched import ObservationLayout
 from mjdrive.suite import split_task
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("checkpoint")
     parser.add_argument("--task", default=None, help="DOMAIN/TASK (default: the checkpoint's)")
-    parser.add_argument("--episodes", type=int, default=1)
-    parser.add_argument("--seed", type=int, default=10_000)
+    parser.add_argument("--episodes", type=int_at_least(1), default=1)
+    parser.add_argument("--seed", type=int_at_least(0), default=10_000)
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     agent, payload = load_agent(args.checkpoint)
@@ -56,4 +57,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_reporting_errors(Path(sys.argv[0]).name, main))

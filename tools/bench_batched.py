@@ -8,7 +8,6 @@ same N and backend. The single-env `DrivingGymEnv` is measured in the same run a
 
 from __future__ import annotations
 
-import argparse
 import os
 import platform
 import sys
@@ -17,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mjdrive.cli import ArgumentParser, int_at_least, positive_float, run_reporting_errors
 from mjdrive.envs import make_env
 from mjdrive.envs.batched import BatchedEnv
 
@@ -73,13 +73,13 @@ def bench_physics(task: str, num_envs: int, nthread: int, backend: str, seconds:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="waypoints/straight")
-    parser.add_argument("--sizes", type=int, nargs="+", default=[1, 8, 32])
-    parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--sizes", type=int_at_least(1), nargs="+", default=[1, 8, 32])
+    parser.add_argument("--threads", type=int_at_least(1), nargs="+", default=[1, 2])
     parser.add_argument("--backends", nargs="+", default=["serial", "threads", "rollout"])
-    parser.add_argument("--seconds", type=float, default=1.5, help="wall time per measurement [s]")
-    parser.add_argument("--rounds", type=int, default=3, help="measurements per figure; the best is kept")
+    parser.add_argument("--seconds", type=positive_float, default=1.5, help="wall time per measurement [s]")
+    parser.add_argument("--rounds", type=int_at_least(1), default=3, help="measurements per figure; the best is kept")
     parser.add_argument("--camera", action="store_true", help="also measure the camera observation")
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
@@ -140,4 +140,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_reporting_errors(Path(sys.argv[0]).name, main))

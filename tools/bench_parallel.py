@@ -26,6 +26,7 @@ from mjdrive.agents.algorithms import agent_class
 from mjdrive.agents.config import apply_overrides, load_config
 from mjdrive.agents.env_factory import make_training_env
 from mjdrive.agents.evaluate import evaluate
+from mjdrive.cli import ArgumentParser, int_at_least, positive_float, run_reporting_errors
 from mjdrive.envs.fanout import fan_out
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -285,11 +286,11 @@ def report(evals: dict, trains: dict, args: argparse.Namespace, load_before: str
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--episodes", type=int, default=60, help="evaluation episodes per row")
-    parser.add_argument("--seed", type=int, default=20_000)
-    parser.add_argument("--seconds", type=float, default=10.0, help="collection time per training row [s]")
-    parser.add_argument("--rounds", type=int, default=2, help="measurements per figure; the best is kept")
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int_at_least(1), default=60, help="evaluation episodes per row")
+    parser.add_argument("--seed", type=int_at_least(0), default=20_000)
+    parser.add_argument("--seconds", type=positive_float, default=10.0, help="collection time per training row [s]")
+    parser.add_argument("--rounds", type=int_at_least(1), default=2, help="measurements per figure; the best is kept")
     parser.add_argument("--out", default=None, help="write the markdown report here")
     args = parser.parse_args(argv)
     import torch
@@ -312,4 +313,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(run_reporting_errors(Path(sys.argv[0]).name, main))

@@ -11,15 +11,17 @@ shared machine disturb far less than wall time; wall-time rates are reported bes
 
 from __future__ import annotations
 
-import argparse
 import platform
 import shutil
 import statistics
+import sys
 import tempfile
 import time
+from pathlib import Path
 
 import mujoco
 
+from mjdrive.cli import ArgumentParser, int_at_least, positive_float, run_reporting_errors
 from mjdrive.envs import make_env
 from mjdrive.policies import make_policy
 from mjdrive.record import RecordEpisodes, RecordOptions
@@ -73,12 +75,12 @@ def bench_task(name: str, rounds: int, seconds: float, options: RecordOptions) -
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", nargs="+", default=["waypoints/straight", "waypoints/four_routes",
                                                        "waypoints/random_routes"])
-    parser.add_argument("--rounds", type=int, default=5)
-    parser.add_argument("--seconds", type=float, default=2.0, help="env time per round and mode [s]")
-    parser.add_argument("--camera-every", type=int, default=0)
+    parser.add_argument("--rounds", type=int_at_least(1), default=5)
+    parser.add_argument("--seconds", type=positive_float, default=2.0, help="env time per round and mode [s]")
+    parser.add_argument("--camera-every", type=int_at_least(0), default=0)
     parser.add_argument("--out", default=None)
     args = parser.parse_args()
     options = RecordOptions(camera_every=args.camera_every)
@@ -107,4 +109,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_reporting_errors(Path(sys.argv[0]).name, main))

@@ -16,14 +16,15 @@ from one it misjudged.
 
 from __future__ import annotations
 
-import argparse
 import json
+import sys
 from collections import deque
 from pathlib import Path
 
 import numpy as np
 
 from mjdrive.agents.evaluate import load_agent
+from mjdrive.cli import ArgumentParser, int_at_least, run_reporting_errors
 from mjdrive.envs import make_env
 from mjdrive.roads.geometry import wrap_angle
 from mjdrive.suite import split_task
@@ -87,10 +88,10 @@ def write_strip(images: list[np.ndarray], path: Path, zoom: int = 3) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("checkpoint", type=Path)
     parser.add_argument("--eval", type=Path, default=None, help="an `mjdrive eval` JSON: its collision episodes")
-    parser.add_argument("--seeds", type=int, nargs="*", default=[], help="episode seeds to replay")
+    parser.add_argument("--seeds", type=int_at_least(0), nargs="*", default=[], help="episode seeds to replay")
     parser.add_argument("--task", default=None, help="DOMAIN/TASK (default: the eval JSON's, else the run's)")
     parser.add_argument("--out", type=Path, default=None, help="also write OUT.md")
     parser.add_argument("--frames", type=Path, default=None,
@@ -130,4 +131,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(run_reporting_errors(Path(sys.argv[0]).name, main))

@@ -5,7 +5,7 @@ route (orange). Usage: python -m tools.draw_map [--out docs/urban_map.png] [--dp
 
 from __future__ import annotations
 
-import argparse
+import sys
 from pathlib import Path
 
 import matplotlib
@@ -15,6 +15,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.patches import Polygon  # noqa: E402
 
+from mjdrive.cli import ArgumentParser, int_at_least, run_reporting_errors
 from mjdrive.roads import Marking, UrbanRoute, urban_route  # noqa: E402
 
 ROUTE_SPACING = 5.0  # [m] between route dots
@@ -58,9 +59,9 @@ def draw(urban: UrbanRoute, ax) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="docs/urban_map.png")
-    parser.add_argument("--dpi", type=int, default=110)
+    parser.add_argument("--dpi", type=int_at_least(1), default=110)
     args = parser.parse_args()
     urban = urban_route()
     x0, y0, x1, y1 = urban.road_map.bounds()
@@ -78,4 +79,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(run_reporting_errors(Path(sys.argv[0]).name, main))

@@ -25,7 +25,6 @@ Sections (--sections, all by default):
 
 from __future__ import annotations
 
-import argparse
 import math
 import platform
 import sys
@@ -38,6 +37,7 @@ import numpy as np
 
 from mjdrive import world
 from mjdrive.bench import calls_per_second
+from mjdrive.cli import ArgumentParser, int_at_least, positive_float, run_reporting_errors
 from mjdrive.sensors import CollisionSensor
 from mjdrive.traffic import ROAD_USER_TYPES, TrafficConfig, overlapping_pairs, slots
 from mjdrive.vehicle import VEHICLES, Vehicle
@@ -419,16 +419,16 @@ def profile_section(dt: float, steps: int, task_name: str = "roundabout/d210") -
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--dts", nargs="+", type=float, default=[0.002, 0.003, 0.004, 0.005, 0.008, 0.01])
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--dts", nargs="+", type=positive_float, default=[0.002, 0.003, 0.004, 0.005, 0.008, 0.01])
     parser.add_argument("--sections", nargs="+", default=["vehicle", "collision", "stability", "throughput"],
                         choices=["vehicle", "collision", "stability", "throughput", "profile"])
-    parser.add_argument("--profile-steps", type=int, default=3000)
+    parser.add_argument("--profile-steps", type=int_at_least(1), default=3000)
     parser.add_argument("--profile-tasks", nargs="+", default=["roundabout/d210"],
                         help="profile: tasks with traffic, domain/task")
-    parser.add_argument("--stability-steps", type=int, default=100_000)
-    parser.add_argument("--seconds", type=float, default=10.0, help="throughput: wall seconds per case")
-    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--stability-steps", type=int_at_least(1), default=100_000)
+    parser.add_argument("--seconds", type=positive_float, default=10.0, help="throughput: wall seconds per case")
+    parser.add_argument("--rounds", type=int_at_least(1), default=5)
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
     start = time.perf_counter()
@@ -457,4 +457,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(run_reporting_errors(Path(sys.argv[0]).name, main))

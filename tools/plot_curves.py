@@ -8,12 +8,13 @@ faint band behind it is the raw per-episode value.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import sys
 from pathlib import Path
 
 import numpy as np
+
+from mjdrive.cli import ArgumentParser, int_at_least, run_reporting_errors
 
 
 def read_episodes(run: Path) -> dict[str, np.ndarray]:
@@ -66,10 +67,10 @@ def plot(runs: list[Path], labels: list[str], out: Path, window: int, title: str
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", type=Path, help="run folders (with episodes.csv) or episodes CSV files")
     parser.add_argument("--labels", nargs="+", default=None)
-    parser.add_argument("--window", type=int, default=50, help="moving-average window [episodes]")
+    parser.add_argument("--window", type=int_at_least(1), default=50, help="moving-average window [episodes]")
     parser.add_argument("--title", default="average reward vs episodes")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
@@ -81,4 +82,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_reporting_errors(Path(sys.argv[0]).name, main))

@@ -96,6 +96,26 @@ def _cli(*argv: str) -> Callable[[], object]:
     return run
 
 
+def _tool(name: str, *argv: str) -> Callable[[], object]:
+    """`python -m tools.NAME ARGV...` in this process: its exit status (argparse's usage errors included)."""
+
+    def run():
+        import importlib
+
+        from mjdrive.cli import run_reporting_errors
+
+        module = importlib.import_module(f"tools.{name}")
+        program, sys.argv[0] = sys.argv[0], f"{name}.py"  # argparse's prog, as `python -m tools.NAME` shows it
+        try:
+            return run_reporting_errors(f"{name}.py", lambda: module.main(list(argv)))
+        except SystemExit as stop:  # argparse's usage errors
+            return stop.code
+        finally:
+            sys.argv[0] = program
+
+    return run
+
+
 class _Payload:
     """A pickle payload that would create MARKER when unpickled (a checkpoint must never run it)."""
 
@@ -240,6 +260,14 @@ def cases() -> list[Case]:
         c("mjdrive eval", "mjdrive eval --episodes 0", "argument --episodes: must be >= 1", _cli("eval", "--checkpoint", "notes.pt", "--episodes", "0")),
         c("mjdrive ensemble", "mjdrive ensemble evil.pt notes.pt --out e.pt", "evil.pt", _cli("ensemble", "evil.pt", "notes.pt", "--out", "e.pt")),
         c("mjdrive ensemble", "mjdrive ensemble missing.pt --out e.pt", "missing.pt: no such file", _cli("ensemble", "missing.pt", "--out", "e.pt")),
+        # --- the study tools (python -m tools.NAME) -------------------------------------------------------
+        c("python -m tools.urban_table2", "python -m tools.urban_table2 --episodes 0", "argument --episodes: must be >= 1", _tool("urban_table2", "--episodes", "0")),
+        c("python -m tools.urban_table2", "python -m tools.urban_table2 --workers -1", "argument --workers: must be >= 0", _tool("urban_table2", "--workers", "-1")),
+        c("python -m tools.urban_difficulty", "python -m tools.urban_difficulty --policy bogus", "invalid choice: 'bogus'", _tool("urban_difficulty", "--policy", "bogus")),
+        c("python -m tools.roundabout_table3", "python -m tools.roundabout_table3 --agent A missing.pt", "checkpoint missing.pt does not exist", _tool("roundabout_table3", "--agent", "A", "missing.pt")),
+        c("python -m tools.roundabout_baselines", "python -m tools.roundabout_baselines --seed -1", "argument --seed: must be >= 0", _tool("roundabout_baselines", "--seed", "-1")),
+        c("python -m tools.select_checkpoint", "python -m tools.select_checkpoint empty_logs", "no checkpoints/step_N.pt", _tool("select_checkpoint", "empty_logs")),
+        c("python -m tools.urban_traffic", "python -m tools.urban_traffic --minutes 0", "argument --minutes: must be a finite number > 0", _tool("urban_traffic", "--minutes", "0")),
     ]  # fmt: skip
     return out
 
@@ -254,7 +282,7 @@ def run_case(case: Case) -> Outcome:
         return Outcome("error", " ".join(str(error).split()))
     except Exception:  # noqa: BLE001  (anything else is a defect the table must show)
         return Outcome("crash", traceback.format_exc(limit=3))
-    if case.entry.startswith("mjdrive"):
+    if case.entry.startswith(("mjdrive", "python -m tools.")):
         lines = [line for line in err.getvalue().splitlines() if line.strip()]
         if result == 2 and len(lines) == 1 and "Traceback" not in err.getvalue():
             return Outcome("error", lines[0])
@@ -289,7 +317,8 @@ def markdown(results: list[tuple[Case, Outcome]]) -> str:
         "Every row is a bad input tried at one entry point and the error mjdrive gives today, produced by",
         "`python -m tools.robustness --out results/robustness.md`; `tests/test_robustness.py` runs the same cases.",
         "Python entry points raise `ValueError` (task keywords: its subclass `mjdrive.ConfigError`); the command",
-        "line prints one line on stderr and exits with status 2, without a traceback. A checkpoint whose pickle",
+        "line (`mjdrive` and the study tools, `python -m tools.NAME`) prints one line on stderr and exits with",
+        "status 2, without a traceback. A checkpoint whose pickle",
         "would run code is refused before anything in it runs (the cases check that its payload never ran).",
         "",
         f"{len(results)} cases, {sum(o.kind == 'error' for _, o in results)} with a clear error.",
@@ -319,4 +348,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from mjdrive.cli import run_reporting_errors
+
+    sys.exit(run_reporting_errors(Path(sys.argv[0]).name, main))

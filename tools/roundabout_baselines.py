@@ -7,7 +7,6 @@ ground truth: IDM, yielding with gap acceptance, crosswalks). Writes the study's
 
 from __future__ import annotations
 
-import argparse
 import platform
 import sys
 import time
@@ -16,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from mjdrive import suite
+from mjdrive.cli import ArgumentParser, int_at_least, run_reporting_errors
 from mjdrive.control.autopilot import Autopilot
 from mjdrive.tasks.roundabout import DENSITIES
 from mjdrive.world import PHYSICS_TIMESTEP
@@ -43,10 +43,10 @@ def evaluate(level: str, careful: bool, episodes: int, seed: int = 0) -> dict[st
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--episodes", type=int, default=50)
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int_at_least(1), default=50)
     parser.add_argument("--levels", nargs="+", default=list(DENSITIES))
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int_at_least(0), default=0)
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
     start = time.perf_counter()
@@ -91,4 +91,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_reporting_errors(Path(sys.argv[0]).name, main))

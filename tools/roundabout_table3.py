@@ -26,6 +26,7 @@ from pathlib import Path
 from mjdrive.agents.checkpoints import load_checkpoint
 from mjdrive.agents.ensemble import describe
 from mjdrive.agents.evaluate import evaluate
+from mjdrive.cli import ArgumentParser, int_at_least, run_reporting_errors
 from mjdrive.config import parse_task_kwargs
 from mjdrive.tasks.roundabout import DENSITIES
 
@@ -65,18 +66,18 @@ def other_ends(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--agent", nargs="+", action="append", required=True, metavar="NAME CHECKPOINT [CSV]",
                         help="a label, its checkpoint and optionally its run's episodes.csv (repeatable)")
-    parser.add_argument("--episodes", type=int, default=50)
+    parser.add_argument("--episodes", type=int_at_least(1), default=50)
     parser.add_argument("--levels", nargs="+", default=list(DENSITIES), choices=list(DENSITIES))
-    parser.add_argument("--seed", type=int, default=10_000)
+    parser.add_argument("--seed", type=int_at_least(0), default=10_000)
     parser.add_argument("--stochastic", action="store_true",
                         help="sample actions from the policy (torch seeded per episode) instead of greedy ones")
     parser.add_argument("--task-kwarg", action="append", default=[], metavar="KEY=VALUE",
                         help="task keyword argument over the checkpoint's, e.g. collision_penalty=100 to score an "
                              "agent trained with another penalty under eq. 12 (repeatable)")
-    parser.add_argument("--workers", type=int, default=0, metavar="N",
+    parser.add_argument("--workers", type=int_at_least(0), default=0, metavar="N",
                         help="run each density's episodes in N worker processes (same table at any N)")
     parser.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
                         help="run the episodes as Ray tasks: a local Ray of --workers CPUs (no ADDRESS), 'auto' "
@@ -87,8 +88,6 @@ def main(argv: list[str] | None = None) -> int:
     for spec in args.agent:
         if len(spec) not in (2, 3):
             parser.error(f"--agent takes NAME CHECKPOINT [EPISODES_CSV], got {spec}")
-    if args.workers < 0:
-        parser.error(f"--workers must be >= 0, got {args.workers}")
     owns_ray = False
     if args.ray is not None:  # one Ray session for every agent and density
         from mjdrive.envs.vector import ray_connect
@@ -170,4 +169,4 @@ def _tables(args: argparse.Namespace, task_kwargs: dict, argv: list[str] | None)
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(run_reporting_errors(Path(sys.argv[0]).name, main))

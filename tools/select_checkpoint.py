@@ -17,7 +17,6 @@ instead of the roundabout's 220 s (they fail either way; the agents' successful 
 
 from __future__ import annotations
 
-import argparse
 import json
 import re
 import shlex
@@ -27,6 +26,7 @@ from pathlib import Path
 
 from mjdrive.agents.evaluate import evaluate
 from mjdrive.agents.train import export_policy
+from mjdrive.cli import ArgumentParser, int_at_least, positive_float, run_reporting_errors
 
 
 def run_checkpoints(run_dir: Path, first: int = 0, last: int | None = None) -> list[tuple[int, Path]]:
@@ -53,17 +53,17 @@ def pooled(summaries: list[dict]) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run_dir", type=Path, help="a `mjdrive train` output folder")
-    parser.add_argument("--first", type=int, default=0, help="lowest env step to consider")
-    parser.add_argument("--last", type=int, default=None, help="highest env step to consider")
-    parser.add_argument("--steps", type=int, nargs="+", default=None,
+    parser.add_argument("--first", type=int_at_least(0), default=0, help="lowest env step to consider")
+    parser.add_argument("--last", type=int_at_least(0), default=None, help="highest env step to consider")
+    parser.add_argument("--steps", type=int_at_least(0), nargs="+", default=None,
                         help="only these env steps (e.g. the best few, again on more seeds)")
-    parser.add_argument("--episodes", type=int, default=40)
-    parser.add_argument("--seed", type=int, default=20_000, help="first validation seed")
+    parser.add_argument("--episodes", type=int_at_least(1), default=40)
+    parser.add_argument("--seed", type=int_at_least(0), default=20_000, help="first validation seed")
     parser.add_argument("--task", nargs="+", default=None,
                         help="DOMAIN/TASK, or several to pool (default: the run's)")
-    parser.add_argument("--time-limit", type=float, default=None, metavar="S",
+    parser.add_argument("--time-limit", type=positive_float, default=None, metavar="S",
                         help="[s] episode time limit instead of the task's (e.g. 60 against the roundabout's 220): "
                              "an immature policy that stands still fails sooner, not differently; validation only")
     parser.add_argument("--export", type=Path, default=None, help="write the chosen policy (acting network only)")
@@ -126,4 +126,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(run_reporting_errors(Path(sys.argv[0]).name, main))

@@ -10,9 +10,11 @@ crossroad and the merge); the lane change is listed for reference.
 
 from __future__ import annotations
 
-import argparse
 import sys
+from pathlib import Path
 
+from mjdrive.cli import ArgumentParser, int_at_least, run_reporting_errors
+from mjdrive.policies import POLICIES
 from tools.report import publish
 from tools.urban_table2 import run
 
@@ -41,11 +43,11 @@ def markdown(results: dict[str, list[dict]], episodes: int, seed: int, policy: s
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--tasks", nargs="*", default=list(TASKS), choices=TASKS)
-    parser.add_argument("--policy", default="always_go", help="the driver (a name of mjdrive.policies)")
-    parser.add_argument("--episodes", type=int, default=100)
-    parser.add_argument("--seed", type=int, default=20000, help="seed of the first episode")
+    parser.add_argument("--policy", default="always_go", choices=POLICIES, help="the driver")
+    parser.add_argument("--episodes", type=int_at_least(1), default=100)
+    parser.add_argument("--seed", type=int_at_least(0), default=20000, help="seed of the first episode")
     parser.add_argument("--out", default=None, help="write the markdown table here")
     args = parser.parse_args(argv)
     results = {task: run(task, args.policy, args.episodes, args.seed) for task in args.tasks}
@@ -55,4 +57,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_reporting_errors(Path(sys.argv[0]).name, main))

@@ -13,13 +13,13 @@ comfort bounds (the paper gives none). Needs matplotlib (`pip install -e .[plot]
 
 from __future__ import annotations
 
-import argparse
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from mjdrive.cli import ArgumentParser, int_at_least, positive_float, run_reporting_errors
 from mjdrive.comfort import AccelerationProfile
 from mjdrive.envs import make_env
 from mjdrive.policies import POLICIES, make_policy
@@ -188,10 +188,10 @@ def peak_span(episode: Episode, half: float = 4.0) -> tuple[float, float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--seed", type=int, default=20000, help="task and episode seed")
+    parser = ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seed", type=int_at_least(0), default=20000, help="task and episode seed")
     parser.add_argument("--policy", default="autopilot", choices=POLICIES)
-    parser.add_argument("--time-limit", type=float, default=None, help="[s] shorter episode (default: task's)")
+    parser.add_argument("--time-limit", type=positive_float, default=None, help="[s] shorter episode (default: task's)")
     parser.add_argument("--out", default="results/urban/", help="folder for the PNGs")
     args = parser.parse_args(argv)
     episode = drive(args.seed, args.policy, args.time_limit)
@@ -213,4 +213,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_reporting_errors(Path(sys.argv[0]).name, main))

@@ -9,13 +9,14 @@ like the paper's; comfort and time over successful episodes only.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 
+from mjdrive.cli import ArgumentParser, int_at_least, run_reporting_errors
 from mjdrive.envs import make_env
 from mjdrive.envs.fanout import fan_out
 from mjdrive.policies import POLICIES, make_policy
@@ -98,20 +99,18 @@ def markdown(task: str, policy: str, rows: list[dict], seed: int) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--task", default="concatenated", choices=("roundabout", "lane_change", "crossroad",
                                                                    "merge", "concatenated"))
     parser.add_argument("--policy", default="autopilot", choices=POLICIES)
-    parser.add_argument("--episodes", type=int, default=200)
-    parser.add_argument("--seed", type=int, default=20000, help="seed of the first episode")
-    parser.add_argument("--workers", type=int, default=0, metavar="N",
+    parser.add_argument("--episodes", type=int_at_least(1), default=200)
+    parser.add_argument("--seed", type=int_at_least(0), default=20000, help="seed of the first episode")
+    parser.add_argument("--workers", type=int_at_least(0), default=0, metavar="N",
                         help="worker processes (0: run the episodes here, in order); same rows for any N")
     parser.add_argument("--ray", default=None, metavar="ADDRESS",
                         help="run the episodes as Ray tasks ('local' for a private Ray of --workers CPUs)")
     parser.add_argument("--out", default=None, help="write the markdown table here")
     args = parser.parse_args(argv)
-    if args.workers < 0:
-        parser.error(f"--workers must be >= 0, got {args.workers}")
     rows = run(args.task, args.policy, args.episodes, args.seed, args.workers, args.ray)
     text = markdown(args.task, args.policy, rows, args.seed)
     publish(text, args.out)
@@ -119,4 +118,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_reporting_errors(Path(sys.argv[0]).name, main))

@@ -11,12 +11,13 @@ minute leaving either of its lanes), and the traffic update's wall time per simu
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
+from mjdrive.cli import ArgumentParser, int_at_least, positive_float, run_reporting_errors
 from mjdrive.roads.conflicts import CROSSING
 from mjdrive.roads.urban import concatenated
 from mjdrive.traffic import overlapping_pairs
@@ -158,9 +159,9 @@ def report(results: dict[str, list[dict]], minutes: float, seeds: int) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--minutes", type=float, default=10.0, help="simulated minutes per map and seed")
-    parser.add_argument("--seeds", type=int, default=5, help="seeds 0..N-1")
+    parser = ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--minutes", type=positive_float, default=10.0, help="simulated minutes per map and seed")
+    parser.add_argument("--seeds", type=int_at_least(1), default=5, help="seeds 0..N-1")
     parser.add_argument("--maps", nargs="*", default=list(MAPS), choices=list(MAPS))
     parser.add_argument("--out", default=None, help="write the markdown report here")
     parser.add_argument("--bench", action="store_true", help="only the traffic cost in a MuJoCo world")
@@ -185,4 +186,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_reporting_errors(Path(sys.argv[0]).name, main))
