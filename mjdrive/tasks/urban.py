@@ -126,7 +126,7 @@ class UrbanTask(DrivingTask):
         self._interval_starts = np.array([s0 for _, s0, _ in intervals], dtype=float)  # [m]
         self._interval_ends = np.array([s1 for _, _, s1 in intervals], dtype=float)  # [m]
         self._interval_names = [name for name, _, _ in intervals] + [FOLLOW]  # index -1: outside every interval
-        self._point_code = np.array([SCENARIOS.index(name) for name in self._point_scenario], dtype=np.int64)
+        self._point_code = np.array([_SCENARIO_CODE[name] for name in self._point_scenario], dtype=np.int64)
 
     # --- episode ----------------------------------------------------------------------------------------
     def initialize_episode(self, physics: Physics) -> None:

@@ -360,20 +360,6 @@ class Traffic:
         accumulated = self._accumulated + dt
         n = int(accumulated / substep + 1e-6)
         self._accumulated = accumulated - n * substep
-        if n == 1 and self._plan is not None and self._k < self.n_plan:  # the usual call: the plan's next substep
-            plan, k = self._plan, self._k
-            self._k = k + 1
-            self.time += substep
-            self._current_pos, self._current_yaw = plan.pos[k], plan.yaw[k]
-            self._current_speed, self._current_quat = plan.speed[k], plan.quat[k]
-            views = self._views
-            if data is not None and views is not None and views[0] is data:  # `write` through its kept views
-                views[1][views[3]] = self._current_pos
-                views[2][views[3]] = self._current_quat
-            elif data is not None:
-                self.write(data)
-            self.cpu_time += time.perf_counter() - start
-            return
         for _ in range(n):  # usually once; loops over substeps, never over road users
             if self._plan is None or self._k >= self.n_plan:
                 if self._plan is not None:
