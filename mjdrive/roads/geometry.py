@@ -41,9 +41,9 @@ def box_points(centre: ArrayLike, heading: ArrayLike, local: ArrayLike) -> np.nd
 def footprint(x: float, y: float, yaw: float, length: float, width: float, centre: bool = False,
               cos_sin: tuple[float, float] | None = None) -> np.ndarray:
     """The four corners (4,2) [m] of a vehicle's rectangle: front-left, front-right, rear-right, rear-left
-    (`box_points` of one box, in scalars for the per-step path: the same operations, numpy's cosine and sine).
-    `centre`: (5,2), (x, y) first; `cos_sin`: numpy's cosine and sine of `yaw` when the caller has them."""
-    c, s = (float(np.cos(yaw)), float(np.sin(yaw))) if cos_sin is None else (float(cos_sin[0]), float(cos_sin[1]))
+    (`box_points` of one box, in scalars for the per-step path: the same operations, libm's cosine and sine as
+    numpy's). `centre`: (5,2), (x, y) first; `cos_sin`: the cosine and sine of `yaw` when the caller has them."""
+    c, s = (math.cos(yaw), math.sin(yaw)) if cos_sin is None else (float(cos_sin[0]), float(cos_sin[1]))
     x, y = float(x), float(y)
     hl, hw = 0.5 * length, 0.5 * width
     corners = [[x + c * hl - s * hw, y + s * hl + c * hw], [x + c * hl - s * -hw, y + s * hl + c * -hw],

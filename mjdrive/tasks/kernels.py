@@ -2,9 +2,9 @@
 task's ego update and features.
 
 Each kernel repeats the numpy code of its task operation for operation (the tasks keep that code, which runs
-without numba; tests/test_task_kernels.py holds the two to the same bits). Sines and cosines stay in numpy,
-computed by the caller: numpy's vectorised versions may round differently from libm on some CPUs; hypot has no
-vectorised version in numpy (libm's in both).
+without numba; tests/test_task_kernels.py holds the two to the same bits). Sines, cosines and hypot are libm's in
+both: numpy (>= 1.25) has no vectorised float64 sine or cosine (it disabled them for their rounding), and no
+vectorised hypot; numba calls libm.
 """
 
 from __future__ import annotations
@@ -49,15 +49,15 @@ def adversary_rows(out: np.ndarray, present: np.ndarray, positions: np.ndarray, 
 
 @jit
 def road_user_rows(out: np.ndarray, positions: np.ndarray, present: np.ndarray, x: float, y: float, c: float,
-                   s: float, vx: float, vy: float, speeds: np.ndarray, cos_dyaw: np.ndarray, sin_dyaw: np.ndarray,
+                   s: float, vx: float, vy: float, speeds: np.ndarray, yaws: np.ndarray, ego_yaw: float,
                    lengths: np.ndarray, kind_onehot: np.ndarray) -> None:
     """Fill `out` (K, 9 + kinds) float32 with the roundabout task's rows of the min(K, P) present road users
     nearest the ego at (x, y) [m] (numpy's stable order of squared distances): 1, position in the ego frame
     (c, s: cos and sin of the ego's yaw) [m], velocity relative to the ego's (vx, vy) [m/s] in the ego frame,
-    cos and sin of the heading difference, length and width [m], kind one-hot.
+    cos and sin of the heading difference (yaw - ego_yaw) [rad], length and width [m], kind one-hot.
 
-    positions (N, 2) [m], speeds (N,) [m/s], cos_dyaw and sin_dyaw (N,) of (yaw - ego yaw), lengths (N, 2) [m]
-    and kind_onehot (N, kinds) of every slot; present (P,) the slots in the world."""
+    positions (N, 2) [m], speeds (N,) [m/s], yaws (N,) [rad], lengths (N, 2) [m] and kind_onehot (N, kinds) of
+    every slot; present (P,) the slots in the world."""
     p = present.shape[0]
     dist2 = np.empty(p)
     for j in range(p):
@@ -68,13 +68,15 @@ def road_user_rows(out: np.ndarray, positions: np.ndarray, present: np.ndarray, 
     for r in range(min(out.shape[0], p)):
         i = present[order[r]]
         rx, ry = positions[i, 0] - x, positions[i, 1] - y
+        dyaw = yaws[i] - ego_yaw
+        cos_dyaw, sin_dyaw = math.cos(dyaw), math.sin(dyaw)
         out[r, 0] = 1.0
         out[r, 1] = c * rx + s * ry
         out[r, 2] = -s * rx + c * ry
-        out[r, 3] = speeds[i] * cos_dyaw[i] - vx
-        out[r, 4] = speeds[i] * sin_dyaw[i] - vy
-        out[r, 5] = cos_dyaw[i]
-        out[r, 6] = sin_dyaw[i]
+        out[r, 3] = speeds[i] * cos_dyaw - vx
+        out[r, 4] = speeds[i] * sin_dyaw - vy
+        out[r, 5] = cos_dyaw
+        out[r, 6] = sin_dyaw
         out[r, 7] = lengths[i, 0]
         out[r, 8] = lengths[i, 1]
         for m in range(kind_onehot.shape[1]):

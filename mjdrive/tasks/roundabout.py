@@ -245,7 +245,7 @@ class RoundaboutTask(DrivingTask):
         data = physics.raw_data
         x, y, yaw, self.speed, self._left, self.yaw_rate = self.read_chassis(data)  # [m/s], [rad/s]
         self.xy, self.yaw = np.array([x, y]), yaw
-        self._yaw_cos_sin = np.cos(yaw), np.sin(yaw)  # numpy's, for the footprint and the observation
+        self._yaw_cos_sin = math.cos(yaw), math.sin(yaw)  # (libm's, as numpy's) for the footprint and observation
         points = footprint(x, y, yaw, self.params.length, self.params.width, centre=True, cos_sin=self._yaw_cos_sin)
         self.corners = points[1:]  # (4,2) [m]
         s, d = self.route_frame(points)
@@ -378,9 +378,8 @@ class RoundaboutTask(DrivingTask):
         c, s = self._yaw_cos_sin
         vx, vy = self.speed, self._left  # `Vehicle.velocity_body`'s numbers, read with the pose
         if KERNELS:  # the same rows in one compiled pass
-            dyaw = traffic.yaws() - self.yaw
             kernels.road_user_rows(out, traffic.positions(), present, float(self.xy[0]), float(self.xy[1]), float(c),
-                                   float(s), vx, vy, traffic.speeds(), np.cos(dyaw), np.sin(dyaw), self._lengths,
+                                   float(s), vx, vy, traffic.speeds(), traffic.yaws(), float(self.yaw), self._lengths,
                                    self._kind_onehot)
             return out
         rel = traffic.positions()[present] - self.xy

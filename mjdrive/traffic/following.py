@@ -174,12 +174,12 @@ def gap_summary_kernel(t: Traffic, f: dict, ctx: dict, kappa: np.ndarray, den: n
     xy_o, yaw_o, v_o, hl_o, hw_o, idx_o = obstacles(t)
     blocked = occupied_crossings(t) if (t.np_ and n_k) else np.zeros(n_k, dtype=bool)
     conflict, committed = _merge_state(t, ctx, f["accept_gap"]) if n_y else (_NO_BOOL, _NO_BOOL)
-    yaw, c = f["yaw"], np.ascontiguousarray  # the kernel is compiled for C-contiguous arrays
+    c = np.ascontiguousarray  # the kernel is compiled for C-contiguous arrays
     return kernels.gap_summary(
         f["rows"], c(f["path"]), c(f["offset"]), f["s"], f["v"], f["length"], f["width"], f["T"], den,
-        np.cos(yaw), np.sin(yaw), c(f["xy"]), kappa, f["courteous"],
+        f["yaw"], c(f["xy"]), kappa, f["courteous"],
         ctx["lane"], ctx["s"], ctx["v"], ctx["length"], c(ctx["offset"]),
-        c(xy_o), np.cos(yaw_o), np.sin(yaw_o), v_o, hl_o, hw_o, idx_o,
+        c(xy_o), yaw_o, v_o, hl_o, hw_o, idx_o,
         blocked, conflict, committed, t.stopped_time, t.intention, t.active, t.lc_dist, c(t._current_pos),
         *_gap_constants(t))
 

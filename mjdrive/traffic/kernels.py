@@ -5,9 +5,9 @@ A decision of the traffic is some 500 numpy calls on arrays of a few dozen eleme
 overhead, not the arithmetic. The kernel here walks every (follower, obstacle) pair once in compiled code
 and keeps only what the IDM needs of each follower's gap table: the smallest gap, the strongest
 interaction term and the least stopping room. It repeats the numpy expressions operation for operation
-(same order, same rounding; sine, cosine and powers stay in numpy, whose SIMD versions may round
-differently from libm), and `tests/test_traffic_kernels.py` checks that both give identical arrays at every
-decision of simulated traffic on every map.
+(same order, same rounding; sines and cosines are libm's in both, since numpy (>= 1.25) has no vectorised
+float64 sine or cosine; powers stay in numpy), and `tests/test_traffic_kernels.py` checks that both give
+identical arrays at every decision of simulated traffic on every map.
 
 numba is an optional dependency (the `fast` extra, installed by `make`; `mjdrive.compiled`): without it
 `KERNELS` is False and the traffic runs the numpy code, which is the specification of this module. Compiled
@@ -16,6 +16,8 @@ compilation (a few seconds).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -53,11 +55,11 @@ def _can_stop(v: float, to_line: float, claim_decel: float, stop_margin: float, 
 @_jit
 def gap_summary(
     # followers (F,)
-    rows, path, offset, s, v, length, width, T, den, c, sn, xy, kappa, courteous_f,
+    rows, path, offset, s, v, length, width, T, den, yaw_f, xy, kappa, courteous_f,
     # agents of the decision (A,)
     lane_a, s_a, v_a, len_a, offset_a,
     # obstacles of the corridor (O,)
-    xy_o, co, so, v_o, hl_o, hw_o, idx_o,
+    xy_o, yaw_o, v_o, hl_o, hw_o, idx_o,
     # crosswalks blocked by pedestrians (K,); roundabout merges (Y,) in conflict, with a committed entry
     blocked_k, conflict_y, committed_y,
     # the vehicles' waiting times [s] (NV,) and intentions (NV, 4): courteous at merges where column `merge_column`
@@ -93,6 +95,12 @@ def gap_summary(
     room = np.full(n_f, INF)
     to_give_way = np.full(n_f, INF)
     two_b = 2 * max_decel
+    c, sn = np.empty(n_f), np.empty(n_f)  # the followers' headings' cosines and sines (libm's, as numpy's)
+    for f in range(n_f):
+        c[f], sn[f] = math.cos(yaw_f[f]), math.sin(yaw_f[f])
+    co, so = np.empty(n_o), np.empty(n_o)  # the obstacles'
+    for o in range(n_o):
+        co[o], so[o] = math.cos(yaw_o[o]), math.sin(yaw_o[o])
     waited_all = np.zeros(n_a)  # [s]
     courteous_a = np.zeros(n_a, dtype=np.bool_)
     for a in range(min(n_a, len(stopped_time))):
@@ -484,22 +492,26 @@ def idm_accel(a, v, v0, ratio4, interaction, room, tau, max_decel):
 
 
 @_jit
-def place_vehicles(x, y, sin_h, cos_h, d, yaw, v, accel, t_plan, active, hidden_pos, slots,
-                   out_pos, out_yaw, out_speed):
+def place_vehicles(x, y, h, d, yaw, v, accel, t_plan, active, hidden_pos, slots, out_pos, out_yaw, out_speed):
     """Write the vehicles' poses into a plan: the centre line x, y [m] (S, NV) shifted by the lateral offset d
-    [m] (S or 1, NV) along the normal (-sin h, cos h) (both from numpy), their yaw [rad] (S, NV) and speed
-    max(v + a t, 0) [m/s]; inactive vehicles at their hidden pose. Into columns `slots` of out_pos (S, N, 3),
+    [m] (S or 1, NV) along the normal (-sin h, cos h) of its heading h [rad] (S, NV), their yaw [rad] (S, NV) and
+    speed max(v + a t, 0) [m/s]; inactive vehicles at their hidden pose. Into columns `slots` of out_pos (S, N, 3),
     out_yaw (S, N), out_speed (S, N), as `Traffic._offset_poses` and `_make_plan` do."""
     n_s, n_v = x.shape
     one_d = d.shape[0] == 1
+    sin_h, cos_h = np.empty(n_v), np.empty(n_v)  # each vehicle's last heading's (libm's, as numpy's): a heading
+    last_h = np.full(n_v, np.nan)  # held (along a straight, at rest) is not computed again (zeros are: their sign)
     for i in range(n_s):
         t = t_plan[i]
         for n in range(n_v):
             slot = slots[n]
             if active[n]:
                 dn = d[0, n] if one_d else d[i, n]
-                out_pos[i, slot, 0] = x[i, n] - sin_h[i, n] * dn
-                out_pos[i, slot, 1] = y[i, n] + cos_h[i, n] * dn
+                hn = h[i, n]
+                if hn != last_h[n] or hn == 0.0:
+                    sin_h[n], cos_h[n], last_h[n] = math.sin(hn), math.cos(hn), hn
+                out_pos[i, slot, 0] = x[i, n] - sin_h[n] * dn
+                out_pos[i, slot, 1] = y[i, n] + cos_h[n] * dn
                 out_pos[i, slot, 2] = 0.0
                 out_yaw[i, slot] = yaw[i, n]
                 out_speed[i, slot] = _maximum(v[n] + accel[n] * t, 0.0)
@@ -509,6 +521,23 @@ def place_vehicles(x, y, sin_h, cos_h, d, yaw, v, accel, t_plan, active, hidden_
                 out_pos[i, slot, 2] = hidden_pos[n, 2]
                 out_yaw[i, slot] = 0.0
                 out_speed[i, slot] = _maximum(v[n] + accel[n] * t, 0.0) * 0.0  # as numpy's x * False
+
+
+@_jit
+def yaw_quats(yaw):
+    """`geometry.yaw_quat` of a plan's yaw [rad] (S, N): quaternions (S, N, 4) (w, x, y, z) about z."""
+    n_s, n = yaw.shape
+    out = np.zeros((n_s, n, 4))
+    for i in range(n_s):
+        for j in range(n):
+            if i and yaw[i, j] == yaw[i - 1, j] and yaw[i, j] != 0.0:  # a yaw held: the same quaternion (zeros
+                # are computed again: their sign)
+                out[i, j, 0], out[i, j, 3] = out[i - 1, j, 0], out[i - 1, j, 3]
+                continue
+            half = 0.5 * yaw[i, j]
+            out[i, j, 0] = math.cos(half)
+            out[i, j, 3] = math.sin(half)
+    return out
 
 
 @_jit

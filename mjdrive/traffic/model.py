@@ -526,7 +526,7 @@ class Traffic:
         vs = self.vehicle_slots
         if KERNELS:
             d, yaw = self._lateral(ds, h)
-            kernels.place_vehicles(x, y, np.sin(h), np.cos(h), d, yaw, self.v, self.accel, self._t_plan, self.active,
+            kernels.place_vehicles(x, y, h, d, yaw, self.v, self.accel, self._t_plan, self.active,
                                    self._hidden_vehicles, vs, out_pos, out_yaw, out_speed)
         else:
             out_pos[:, vs], out_yaw[:, vs] = self._offset_poses(ds, x, y, h)
@@ -538,7 +538,7 @@ class Traffic:
         elif self.np_:
             ps = self.pedestrian_slots
             out_pos[:, ps], out_yaw[:, ps], out_speed[:, ps] = pedestrian_poses(self, t)
-        return _Plan(out_pos, yaw_quat(out_yaw), out_yaw, out_speed)
+        return _Plan(out_pos, kernels.yaw_quats(out_yaw) if KERNELS else yaw_quat(out_yaw), out_yaw, out_speed)
 
     def _vehicle_poses(self, ds: np.ndarray, before: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Poses (S, NV, 3), yaw (S, NV) of the vehicles after moving ds (S, NV) [m] along their paths
@@ -547,7 +547,7 @@ class Traffic:
             x, y, h = self._centre_poses(ds, before)
             d, yaw = self._lateral(ds, h)
             pos, out_yaw = np.empty(ds.shape + (3,)), np.empty(ds.shape)
-            kernels.place_vehicles(x, y, np.sin(h), np.cos(h), d, yaw, self.v, self.accel, self._t_plan, self.active,
+            kernels.place_vehicles(x, y, h, d, yaw, self.v, self.accel, self._t_plan, self.active,
                                    self._hidden_vehicles, self._vehicle_rows, pos, out_yaw, np.empty(ds.shape))
             return pos, out_yaw
         return self._offset_poses(ds, *self._centre_poses(ds, before))
