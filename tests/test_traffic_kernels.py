@@ -44,7 +44,8 @@ def _checked_summaries(monkeypatch) -> list[int]:
 
 
 def _assert_same(expected, got, where: str = "") -> None:
-    """Equal bit for bit: arrays (and their dtypes), plans, dicts, tuples, scalars."""
+    """Equal: arrays (and their dtypes), plans, dicts, tuples, scalars, value for value (a zero's sign aside: numpy's
+    vectorised minimum and maximum return either zero of a tie, as the CPU's instructions do)."""
     if isinstance(expected, np.ndarray):
         assert isinstance(got, np.ndarray) and expected.dtype == got.dtype and np.array_equal(expected, got), where
     elif isinstance(expected, dict):
