@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import math
 import subprocess
 import sys
 
@@ -391,3 +392,16 @@ def test_desired_speed_ratio_is_numpys():
                                           np.full(t.nv, np.inf), m.length, m.entry_speed, m.speed_limit,
                                           m.anticipation, m.yield_lane, m.yield_stop, t.config.yield_speed, v)
         assert np.array_equal(ratio, v / np.maximum(v0, 0.1)) and np.any(v0 < 0.2)
+
+
+def test_numpys_float64_sine_and_cosine_are_libms():
+    """The kernels compute sines and cosines with libm (`math`), the numpy code with numpy: the same bits only while
+    numpy's float64 sin and cos call libm (numpy >= 1.25 has no vectorised version of them). Headings, their halves
+    and far angles, in arrays of every length a plan has (a vectorised loop would differ on some)."""
+    rng = np.random.default_rng(0)
+    for n in (1, 3, 8, 17, 64, 960, 4096):
+        x = np.concatenate([rng.uniform(-2 * np.pi, 2 * np.pi, n), rng.uniform(-1e3, 1e3, n), [0.0, -0.0, np.pi]])
+        for ours, theirs in ((np.sin, math.sin), (np.cos, math.cos)):
+            expected = np.array([theirs(v) for v in x])
+            assert ours(x).tobytes() == expected.tobytes(), (ours.__name__, n)
+            assert ours(0.5 * x).tobytes() == np.array([theirs(0.5 * v) for v in x]).tobytes(), (ours.__name__, n)
