@@ -55,6 +55,12 @@ class CollisionSensor:
         self.last_other_geom = int(pairs[k, 1] if codes[k, 0] == 1 else pairs[k, 0])
         return True
 
+    @property
+    def contact_sensors(self) -> tuple[int, int] | None:
+        """sensordata addresses of the world's counts of the ego's contacts and of its contacts with the ground
+        (touching something else iff the first exceeds the second); None if the world has no such sensors."""
+        return self._counts
+
     def sample(self, data: mujoco.MjData) -> None:
         """Check the contacts now and remember a hit until the next `collided`."""
         if not self.pending and self(data):

@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import dm_env
 import mujoco
@@ -21,8 +21,12 @@ from mjdrive.config import Config, ConfigError, param
 from mjdrive.roads import RoadMap
 from mjdrive.roads.geometry import footprint
 from mjdrive.sensors import SENSORS, CameraRenderer, CollisionSensor, ExtraSensors, LaneInvasionSensor
+from mjdrive.tasks.chunks import ChunkRunner
 from mjdrive.vehicle import VEHICLES, Vehicle
 from mjdrive.world import PHYSICS_TIMESTEP
+
+if TYPE_CHECKING:
+    from mjdrive.traffic import Traffic
 
 ACTION_NAMES = ("throttle", "steer", "brake")
 ACTION_SPEC = specs.BoundedArray(
@@ -157,15 +161,19 @@ class Physics(dm_mujoco.Physics):
     substep_callback: Callable[[Physics, float], None] | None = None
     substep_interval: int = 10  # physics steps per callback
     substep_dt: float = 0.0  # [s] the physics step when `set_substeps` set the callback (0: read it each time)
+    substep_runner: Callable[[Physics, int, Callable[[Physics, float], None]], None] | None = None  # tasks.chunks
     raw_model: mujoco.MjModel
     raw_data: mujoco.MjData
 
-    def set_substeps(self, callback: Callable[[Physics, float], None] | None, period: float) -> None:
+    def set_substeps(self, callback: Callable[[Physics, float], None] | None, period: float,
+                     runner: Callable[[Physics, int, Callable[[Physics, float], None]], None] | None = None) -> None:
         """Call `callback(physics, dt)` every `period` [s] of physics (the nearest whole number of physics steps,
-        at least one) from now on; None: no callback."""
+        at least one) from now on; None: no callback. `runner(physics, nstep, callback)` (a `chunks.ChunkRunner`),
+        if given, steps the chunks instead and does the callback's work itself where it can."""
         self.substep_dt = float(self.raw_model.opt.timestep)  # [s]
         self.substep_interval = max(1, int(round(period / self.substep_dt)))
         self.substep_callback = callback
+        self.substep_runner = runner if callback is not None else None
 
     def _reload_from_data(self, data) -> None:
         self.raw_model, self.raw_data = data.model.ptr, data.ptr  # before dm_control's own set-up uses them
@@ -178,6 +186,9 @@ class Physics(dm_mujoco.Physics):
     def advance(self, nstep: int = 1) -> None:
         """`nstep` physics steps (with the substep callback), without dm_control's invalid-state check:
         DrivingEnvironment.after_physics checks the warnings itself."""
+        if self.substep_runner is not None:
+            self.substep_runner(self, nstep, self.substep_callback)
+            return
         model, data = self.raw_model, self.raw_data
         step_in_chunks((self,), nstep, lambda n: mujoco.mj_step(model, data, n))
 
@@ -284,12 +295,18 @@ class DrivingTask(control.Task):
         seconds of physics: the chunk is the nearest whole number of physics steps) from now on."""
         self.lane_invasion_sensor.reset(self.ego_corners(physics))
         self.collision_sensor.reset()
-        physics.set_substeps(self.substep, self.substep_period())
+        physics.set_substeps(self.substep, self.substep_period(),
+                             ChunkRunner.of(self.collision_sensor, self.substep_traffic()))
 
     def substep_period(self) -> float:
         """[s] of physics between `substep` calls: CONTACT_SAMPLE_PERIOD (tasks that move things between
         chunks may set their own)."""
         return CONTACT_SAMPLE_PERIOD
+
+    def substep_traffic(self) -> Traffic | None:
+        """The traffic `substep` advances after sampling the contacts (None: it only samples them), for the
+        compiled chunks (`chunks.ChunkRunner`), which do both where they can."""
+        return None
 
     def substep(self, physics: Physics, dt: float) -> None:
         """Physics.substep_callback (every `substep_interval` physics steps): sample the ego's contacts.

@@ -219,6 +219,9 @@ class RoundaboutTask(DrivingTask):
         """[s] between substeps: the traffic's pose period (mocap poses written and contacts sampled)."""
         return self.traffic.config.substep
 
+    def substep_traffic(self) -> Traffic:
+        return self.traffic
+
     def substep(self, physics: Physics, dt: float) -> None:
         """Physics.substep_callback: sample the ego's contacts, then move the traffic (its mocap poses)."""
         data = physics.raw_data

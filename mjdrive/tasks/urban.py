@@ -51,7 +51,7 @@ from mjdrive.tasks.base import (
     configured_task,
     environment_config,
 )
-from mjdrive.traffic import KIND_NAMES, EgoState, TrafficConfig, counts_to_kinds, slots
+from mjdrive.traffic import KIND_NAMES, EgoState, Traffic, TrafficConfig, counts_to_kinds, slots
 from mjdrive.traffic.intentions import SCENARIOS as INTENTION_SCENARIOS
 from mjdrive.traffic.urban import URBAN_CONFIG, default_counts, urban_traffic
 
@@ -153,6 +153,9 @@ class UrbanTask(DrivingTask):
     def substep_period(self) -> float:
         """[s] between substeps: the traffic's pose period (mocap poses written and contacts sampled)."""
         return self.traffic.config.substep
+
+    def substep_traffic(self) -> Traffic:
+        return self.traffic
 
     def substep(self, physics: Physics, dt: float) -> None:
         """Physics.substep_callback: sample the ego's contacts, then move the traffic."""

@@ -378,6 +378,25 @@ class Traffic:
             self.write(data)
         self.cpu_time += time.perf_counter() - start
 
+    def pose_cursor(self) -> tuple[np.ndarray, np.ndarray, int, int, float, float, float] | None:
+        """Where `advance` stands in the plan, for a compiled loop that takes its plain substeps
+        (`tasks.chunks`): the plan's positions (S, N, 3) [m] and quaternions (S, N, 4), the substeps taken of
+        it and their count S, the time [s] accumulated toward the next substep, the substep [s] and the traffic's
+        time [s]; None without a plan (the next substep decides)."""
+        plan = self._plan
+        if plan is None:
+            return None
+        return plan.pos, plan.quat, self._k, self.n_plan, self._accumulated, self.config.substep, self.time
+
+    def moved(self, k: int, accumulated: float, time: float) -> None:
+        """The compiled loop took the plan's substeps up to k (of `pose_cursor`), leaving `accumulated` [s] toward
+        the next, at traffic time `time` [s], and wrote their poses: the state `advance` would have left."""
+        if k != self._k:
+            plan, i = self._plan, k - 1
+            self._current_pos, self._current_yaw = plan.pos[i], plan.yaw[i]
+            self._current_speed, self._current_quat = plan.speed[i], plan.quat[i]
+        self._k, self._accumulated, self.time = k, accumulated, time
+
     def write(self, data: mujoco.MjData) -> None:
         """Write the current poses into data.mocap_pos / mocap_quat."""
         if self._mocap is None:
