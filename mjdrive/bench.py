@@ -340,7 +340,8 @@ def run_roundabout_benchmarks(levels=ROUNDABOUT_LEVELS, seconds: float = 3.0, im
         f"traffic flows; camera = 4 stacked {image_size}x{image_size} gray frames.",
         "raw: `mj_step` of the same model from the same state (traffic boxes still). env/raw: simulated "
         "seconds per wall second of the env (features observation) over raw physics. traffic share: wall "
-        "time inside `Traffic.advance` (decisions, motion, mocap writes) over the env's wall time. Raw, env and "
+        "time inside `Traffic.advance` over the env's wall time: its decisions and the substeps handed back to it "
+        "(the other substeps' pose writes run inside the compiled physics chunks, `tasks.chunks`). Raw, env and "
         f"env at {COMPARE_DT * 1e3:g} ms are measured in {ROUNDS} interleaved rounds; each figure is the best round "
         "(robust to other processes on the machine).",
     ]

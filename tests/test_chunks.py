@@ -15,19 +15,6 @@ from mjdrive.tasks import chunks
 pytestmark = pytest.mark.skipif(not KERNELS, reason="the compiled chunks need numba (the `fast` extra)")
 
 
-def _python_chunks(env) -> None:
-    """Make `env` step its chunks in Python (`step_in_chunks` with the task's callback), now and after resets."""
-    task = env.task
-    reset = task.reset_safety_sensors
-
-    def without_runner(physics):
-        reset(physics)
-        physics.substep_runner = None
-
-    task.reset_safety_sensors = without_runner
-    env.physics.substep_runner = None
-
-
 def _trace(env, steps: int, actions: np.ndarray) -> tuple[list, dict]:
     """Per step: qpos, qvel, mocap poses, reward, the traffic's state; and counts of what happened."""
     out, seen = [], {"collisions": 0, "resets": 0}
@@ -64,11 +51,10 @@ def test_compiled_chunks_give_the_python_loops_trajectory(domain, task, kwargs, 
     actions = np.column_stack([rng.uniform(0.5, 1.0, steps), rng.uniform(-0.3, 0.3, steps), np.zeros(steps)])
     compiled = suite.load(domain, task, {"random": 3, **kwargs})
     python = suite.load(domain, task, {"random": 3, **kwargs})
-    _python_chunks(python)
+    python.physics.python_chunks = True  # `step_in_chunks` with the task's callback
     compiled.reset()
     python.reset()
     assert isinstance(compiled.physics.substep_runner, chunks.ChunkRunner)
-    assert python.physics.substep_runner is None
     trace_c, seen_c = _trace(compiled, steps, actions)
     trace_p, seen_p = _trace(python, steps, actions)
     assert seen_c == seen_p

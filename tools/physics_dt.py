@@ -389,10 +389,10 @@ def profile(dt: float, steps: int, task_name: str = "roundabout/d210") -> dict[s
     ms = {key: 1e3 * value / steps for key, value in spent.items()}
     out = {"env step": 1e3 * total / steps, "raw mj_step of a control step": 1e3 * raw / steps}
     decisions = f"traffic: decisions (every {traffic.config.decision_period:g} s)"
-    out["traffic: motion and mocap writes"] = ms["traffic: advance (all)"] - ms[decisions]
+    out["traffic: substeps handed back to Python (pose writes)"] = ms["traffic: advance (all)"] - ms[decisions]
     out[decisions] = ms[decisions]
-    out["contact samples (every 0.02 s)"] = ms["contact samples (every 0.02 s)"]
-    out["physics chunks beyond raw mj_step (callbacks, cache)"] = (
+    out["contact samples handed back to Python"] = ms["contact samples (every 0.02 s)"]
+    out["physics chunks beyond raw mj_step (compiled contact checks and pose writes, cache)"] = (
         ms["physics.advance (all)"] - out["raw mj_step of a control step"] - ms["traffic: advance (all)"]
         - ms["contact samples (every 0.02 s)"])
     for key in ("task: action to controls", "task: ego state, sensors, reward", "task: observation"):

@@ -162,6 +162,7 @@ class Physics(dm_mujoco.Physics):
     substep_interval: int = 10  # physics steps per callback
     substep_dt: float = 0.0  # [s] the physics step when `set_substeps` set the callback (0: read it each time)
     substep_runner: Callable[[Physics, int, Callable[[Physics, float], None]], None] | None = None  # tasks.chunks
+    python_chunks: bool = False  # True: every chunk and callback in Python even with a runner (tests, profiling)
     raw_model: mujoco.MjModel
     raw_data: mujoco.MjData
 
@@ -186,7 +187,7 @@ class Physics(dm_mujoco.Physics):
     def advance(self, nstep: int = 1) -> None:
         """`nstep` physics steps (with the substep callback), without dm_control's invalid-state check:
         DrivingEnvironment.after_physics checks the warnings itself."""
-        if self.substep_runner is not None:
+        if self.substep_runner is not None and not self.python_chunks:
             self.substep_runner(self, nstep, self.substep_callback)
             return
         model, data = self.raw_model, self.raw_data
