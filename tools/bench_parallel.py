@@ -287,7 +287,8 @@ def report(evals: dict, trains: dict, args: argparse.Namespace, load_before: str
 
 def main(argv: list[str] | None = None) -> int:
     parser = ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--episodes", type=int_at_least(1), default=60, help="evaluation episodes per row")
+    parser.add_argument("--episodes", type=int_at_least(1), default=200,
+                        help="evaluation episodes per row (200: the smallest table the study tools print)")
     parser.add_argument("--seed", type=int_at_least(0), default=20_000)
     parser.add_argument("--seconds", type=positive_float, default=10.0, help="collection time per training row [s]")
     parser.add_argument("--rounds", type=int_at_least(1), default=2, help="measurements per figure; the best is kept")
