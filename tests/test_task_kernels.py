@@ -84,24 +84,35 @@ def test_observation_kernels_keep_numpy_order_on_ties(monkeypatch, task_id):
     _both_ways(monkeypatch, task, dm_env.physics)
 
 
-_EGO_FIELDS = ("speed", "yaw_rate", "yaw", "route_s", "lane_offset", "heading_error", "scenario", "_chassis")
+_EGO_FIELDS = ("speed", "yaw_rate", "yaw", "route_s", "lane_offset", "heading_error", "_chassis")
+_TASK_EGO_FIELDS = {"urban": ("scenario",), "roundabout": ("_left", "_yaw_cos_sin", "_frame_time")}
+
+
+def _hex(value):
+    """Floats (alone, in tuples, lists or arrays) as their hex: compared bit for bit."""
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if isinstance(value, (tuple, list)):
+        return [_hex(v) for v in value]
+    return float.hex(value) if isinstance(value, float) else value
 
 
 def _ego_update_both_ways(monkeypatch, task, physics) -> dict:
-    """The urban task's ego update with the numpy code and with the kernel, from the same route-frame window;
-    asserts the same state, bit for bit (floats compared as their hex), returns it."""
+    """The urban or roundabout task's ego update with the numpy code and with the kernel, from the same route-frame
+    window; asserts the same state, bit for bit (floats compared as their hex), returns it."""
     module = sys.modules[type(task).__module__]
+    fields = _EGO_FIELDS + _TASK_EGO_FIELDS[module.__name__.rsplit(".", 1)[-1]]
+    if module.__name__.endswith("roundabout"):
+        fields += ("corners", "corner_offsets")
     frame, states = task.route_frame, []
     segment = frame.segment
     for kernels_on in (False, True):
         monkeypatch.setattr(module, "KERNELS", kernels_on)
         frame.segment = segment
         task._update_ego(physics)
-        state = {name: getattr(task, name) for name in _EGO_FIELDS}
-        state["xy"], state["segment"] = task.xy.tolist(), frame.segment
-        states.append({k: tuple(map(float.hex, v)) if isinstance(v, tuple) else
-                       [float.hex(u) for u in v] if isinstance(v, list) else
-                       float.hex(v) if isinstance(v, float) else v for k, v in state.items()})
+        state = {name: _hex(getattr(task, name)) for name in fields}
+        state["xy"], state["segment"] = _hex(task.xy), frame.segment
+        states.append(state)
     assert states[1] == states[0]
     return states[1]
 
@@ -130,3 +141,29 @@ def test_urban_ego_kernel_matches_numpy(monkeypatch, task_id, steps):
     data.qpos[qa + 3:qa + 7] = (np.cos(1.6), 0.0, 0.0, np.sin(1.6))  # yaw 3.2 rad
     state = _ego_update_both_ways(monkeypatch, task, physics)
     assert abs(float.fromhex(state["heading_error"])) > 2.5 and abs(float.fromhex(state["lane_offset"])) > 2.0
+
+
+def test_roundabout_ego_kernel_matches_numpy(monkeypatch):
+    """`RoundaboutTask._update_ego` in one kernel (chassis state, footprint corners, route coordinates of the centre
+    and corners, heading error) gives the numpy code's state at every step of autopilot episodes, and off the
+    route turned round, with corners off the lanes."""
+    env = make_env("roundabout", "d160", random=5)
+    dm_env = env.unwrapped.dm_env
+    task, physics = dm_env.task, dm_env.physics
+    act = make_policy("autopilot", env, 5)
+    observation, _ = env.reset(seed=5)
+    route_s = []
+    for _ in range(300):
+        observation, _, terminated, truncated, info = env.step(act(observation))
+        state = _ego_update_both_ways(monkeypatch, task, physics)
+        route_s.append(float.fromhex(state["route_s"]))
+        if terminated or truncated:
+            observation, _ = env.reset()
+    assert max(route_s) - min(route_s) > 30.0  # the ego drove along its route
+    data = physics.raw_data
+    qa, _ = task.vehicle.state_addresses
+    data.qpos[qa:qa + 2] += (0.0, 4.0)
+    data.qpos[qa + 3:qa + 7] = (np.cos(1.6), 0.0, 0.0, np.sin(1.6))  # yaw 3.2 rad
+    state = _ego_update_both_ways(monkeypatch, task, physics)
+    assert abs(float.fromhex(state["heading_error"])) > 2.5
+    assert max(abs(float.fromhex(d)) for d in state["corner_offsets"]) > task._route_width / 2

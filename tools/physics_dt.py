@@ -39,6 +39,7 @@ from mjdrive import world
 from mjdrive.bench import calls_per_second
 from mjdrive.cli import ArgumentParser, int_at_least, positive_float, run_reporting_errors
 from mjdrive.sensors import CollisionSensor
+from mjdrive.tasks import chunks
 from mjdrive.traffic import ROAD_USER_TYPES, TrafficConfig, overlapping_pairs, slots
 from mjdrive.vehicle import VEHICLES, Vehicle
 
@@ -344,7 +345,9 @@ def throughput_section(dts: list[float], seconds: float, rounds: int) -> list[st
 
 def profile(dt: float, steps: int, task_name: str = "roundabout/d210") -> dict[str, float]:
     """Wall time [ms] per env step of a task with traffic (features, the ego braking where it starts: at its
-    yield line on the roundabout) by part: each part's functions are wrapped with a timer on this env only."""
+    yield line on the roundabout) by part: each part's functions are wrapped with a timer on this env only.
+    Also the compiled chunks' MuJoCo time per physics step [us] where a control step's physics begins (right after
+    the step's Python) and elsewhere, against raw `mj_step` in a tight loop from the env's own state."""
     env = load(*task_name.split("/"), dt)
     env.reset()
     task, traffic, physics = env.task, env.task.traffic, env.physics
@@ -370,18 +373,40 @@ def profile(dt: float, steps: int, task_name: str = "roundabout/d210") -> dict[s
     timed(task.collision_sensor, "sample", "contact samples (every 0.02 s)")
     timed(physics, "advance", "physics.advance (all)")
     timed(env, "reset", "episode resets (traffic warm-up), averaged over the steps")
+    # [s], physics steps: kernel runs of a control step's first chunk alone (handed back after it: a decision is
+    # due), and all other runs
+    kernel_runs = {"first": [0.0, 0], "rest": [0.0, 0]}
+    kernel = chunks.run_chunks
+
+    def timed_kernel(*args):
+        start = time.perf_counter()
+        out = kernel(*args)
+        first = args[3] == env.n_sub_steps and out[0] == physics.substep_interval  # args[3]: steps left; out[0]: done
+        runs = kernel_runs["first" if first else "rest"]
+        runs[0] += time.perf_counter() - start
+        runs[1] += out[0]
+        return out
+
+    chunks.run_chunks = timed_kernel
     hold = np.array([0.0, 0.0, 1.0])
-    for _ in range(20):
-        env.step(hold)
-    task.comfort_metrics()  # the metrics' one-off import (scipy.signal) before the timed steps
-    spent.update({key: 0.0 for key in spent})
-    start = time.perf_counter()
-    for _ in range(steps):
-        if env.step(hold).last():
-            env.reset()
-    total = time.perf_counter() - start
+    try:
+        for _ in range(20):
+            env.step(hold)
+        task.comfort_metrics()  # the metrics' one-off import (scipy.signal) before the timed steps
+        spent.update({key: 0.0 for key in spent})
+        kernel_runs.update({key: [0.0, 0] for key in kernel_runs})
+        start = time.perf_counter()
+        for _ in range(steps):
+            if env.step(hold).last():
+                env.reset()
+        total = time.perf_counter() - start
+    finally:
+        chunks.run_chunks = kernel
     model = physics.model.ptr
-    data = mujoco.MjData(model)
+    data = mujoco.MjData(model)  # the env's state, its traffic held where it is (as `mjdrive bench` measures)
+    for field in ("qpos", "qvel", "act", "ctrl", "mocap_pos", "mocap_quat"):
+        getattr(data, field)[:] = getattr(physics.data, field)
+    mujoco.mj_forward(model, data)
     start = time.perf_counter()
     for _ in range(steps):
         mujoco.mj_step(model, data, env.n_sub_steps)
@@ -393,9 +418,8 @@ def profile(dt: float, steps: int, task_name: str = "roundabout/d210") -> dict[s
     out[handed_back] = ms["traffic: advance (all)"] - ms[decisions]
     out[decisions] = ms[decisions]
     out["contact samples handed back to Python"] = ms["contact samples (every 0.02 s)"]
-    out["physics chunks beyond raw mj_step (compiled contact checks and pose writes, cache)"] = (
-        ms["physics.advance (all)"] - out["raw mj_step of a control step"] - ms["traffic: advance (all)"]
-        - ms["contact samples (every 0.02 s)"])
+    out[CHUNKS_BEYOND_RAW] = (ms["physics.advance (all)"] - out["raw mj_step of a control step"]
+                              - ms["traffic: advance (all)"] - ms["contact samples (every 0.02 s)"])
     for key in ("task: action to controls", "task: ego state, sensors, reward", "task: observation"):
         out[key] = ms[key]
     resets = "episode resets (traffic warm-up), averaged over the steps"
@@ -403,7 +427,13 @@ def profile(dt: float, steps: int, task_name: str = "roundabout/d210") -> dict[s
     parts = ("task: action to controls", "task: ego state, sensors, reward", "task: observation", resets)
     out["dm_control's step beyond these (comfort sample, checks)"] = (
         out["env step"] - ms["physics.advance (all)"] - sum(ms[key] for key in parts))
+    n_raw = steps * env.n_sub_steps
+    per_step = {key: 1e6 * seconds / max(n, 1) for key, (seconds, n) in kernel_runs.items()}
+    out["us per mj_step"] = {"raw": 1e6 * raw / n_raw, **per_step} if kernel_runs["rest"][1] else None
     return out
+
+
+CHUNKS_BEYOND_RAW = "physics chunks beyond raw mj_step (moving traffic, first chunk after Python, pose writes)"
 
 
 def profile_section(dt: float, steps: int, task_name: str = "roundabout/d210") -> list[str]:
@@ -413,9 +443,15 @@ def profile_section(dt: float, steps: int, task_name: str = "roundabout/d210") -
              f"{steps} steps (features, the ego braking where it starts); each part timed by a wrapper on this env "
              "(a wrapper adds ~1 us per call).", "", "| part | ms per env step | share of the env step |",
              "| --- | ---: | ---: |"]
+    per_step = r.pop("us per mj_step")
     for key, value in r.items():
         lines.append(f"| {key} | {value:.3f} | {value / r['env step']:.0%} |")
     lines.append(f"| env/raw | {r['raw mj_step of a control step'] / r['env step']:.0%} | |")
+    if per_step:  # the compiled chunks ran (numba installed)
+        lines += ["", f"MuJoCo per physics step in the compiled chunks: {per_step['first']:.2f} us in a control step's "
+                  f"first chunk run alone (right after the step's Python, a decision due after it), "
+                  f"{per_step['rest']:.2f} us in all other runs; raw `mj_step` in a tight loop from the env's state "
+                  f"(traffic held): {per_step['raw']:.2f} us."]
     return lines
 
 

@@ -1,5 +1,5 @@
-"""Compiled parts of the tasks' per-step work (numba, `mjdrive.compiled`): the nearest road users' rows, the urban
-task's ego update and features.
+"""Compiled parts of the tasks' per-step work (numba, `mjdrive.compiled`): the nearest road users' rows, the
+roundabout and urban tasks' ego updates, the urban task's features.
 
 Each kernel repeats the numpy code of its task operation for operation (the tasks keep that code, which runs
 without numba; tests/test_task_kernels.py holds the two to the same bits). Sines, cosines and hypot are libm's in
@@ -100,6 +100,32 @@ def urban_ego(qpos: np.ndarray, qvel: np.ndarray, qa: int, va: int, x0: np.ndarr
     error = yaw - math.atan2(ty[segment], tx[segment])
     error = (error + math.pi) % (2 * math.pi) - math.pi
     return px, py, yaw, forward, left, yaw_rate, s, d, segment, interval, error
+
+
+@jit
+def roundabout_ego(qpos: np.ndarray, qvel: np.ndarray, qa: int, va: int, length: float, width: float, x0: np.ndarray,
+                   y0: np.ndarray, tx: np.ndarray, ty: np.ndarray, seg_length: np.ndarray, s0: np.ndarray, lo: int,
+                   hi: int, corners: np.ndarray, offsets: np.ndarray):
+    """The roundabout task's ego update in one pass: `Vehicle.planar_state` of the free joint at qpos[qa], qvel[va];
+    the car's `footprint` (length x width [m]) into `corners` (4, 2) [m]; `RouteFrame.__call__` of its centre and
+    corners on the segments lo..hi (x0 ... s0), the corners' offsets [m] into `offsets` (4,); the heading error
+    [rad] to the centre's segment, wrapped as `wrap_angle` wraps a float. Returns (x, y, yaw, forward, left,
+    yaw rate, cos yaw, sin yaw, s, d, segment, heading error)."""
+    px, py, yaw, forward, left, yaw_rate = chassis_state(
+        qpos[qa], qpos[qa + 1], qpos[qa + 3], qpos[qa + 4], qpos[qa + 5], qpos[qa + 6],
+        qvel[va], qvel[va + 1], qvel[va + 2], qvel[va + 3], qvel[va + 4], qvel[va + 5])
+    c, s = math.cos(yaw), math.sin(yaw)
+    hl, hw = 0.5 * length, 0.5 * width
+    corners[0, 0], corners[0, 1] = px + c * hl - s * hw, py + s * hl + c * hw  # `footprint`, term for term
+    corners[1, 0], corners[1, 1] = px + c * hl - s * -hw, py + s * hl + c * -hw
+    corners[2, 0], corners[2, 1] = px + c * -hl - s * -hw, py + s * -hl + c * -hw
+    corners[3, 0], corners[3, 1] = px + c * -hl - s * hw, py + s * -hl + c * hw
+    route_s, d, segment = nearest_on_segments(px, py, x0, y0, tx, ty, seg_length, s0, lo, hi)
+    for k in range(4):
+        offsets[k] = nearest_on_segments(corners[k, 0], corners[k, 1], x0, y0, tx, ty, seg_length, s0, lo, hi)[1]
+    error = yaw - math.atan2(ty[segment], tx[segment])
+    error = (error + math.pi) % (2 * math.pi) - math.pi
+    return px, py, yaw, forward, left, yaw_rate, c, s, route_s, d, segment, error
 
 
 @inline

@@ -246,6 +246,19 @@ class RoundaboutTask(DrivingTask):
 
     def _update_ego(self, physics: Physics) -> None:
         data = physics.raw_data
+        if KERNELS:  # the same numbers in one compiled pass
+            frame = self.route_frame
+            lo, hi = frame.window()
+            qa, va = self.vehicle.state_addresses
+            self.corners, self.corner_offsets = np.empty((4, 2)), np.empty(4)
+            (x, y, yaw, self.speed, self._left, self.yaw_rate, c, s, self.route_s, self.lane_offset, frame.segment,
+             self.heading_error) = kernels.roundabout_ego(
+                data.qpos, data.qvel, qa, va, self.params.length, self.params.width, frame.x0, frame.y0, frame.tx,
+                frame.ty, frame.length, frame.s0, lo, hi, self.corners, self.corner_offsets)
+            self._chassis = yaw, self.speed, self._left  # `read_chassis`' hand-over to the comfort sample
+            self.xy, self.yaw, self._yaw_cos_sin = np.array([x, y]), yaw, (c, s)
+            self._frame_time = data.time
+            return
         x, y, yaw, self.speed, self._left, self.yaw_rate = self.read_chassis(data)  # [m/s], [rad/s]
         self.xy, self.yaw = np.array([x, y]), yaw
         self._yaw_cos_sin = math.cos(yaw), math.sin(yaw)  # (libm's, as numpy's) for the footprint and observation
