@@ -1,8 +1,8 @@
 """`python -m mjdrive.envs.compile_kernels`: compile every numba kernel into the on-disk cache once (`make install`
 runs it), so that no env or worker pays the compilation later: the traffic's and the route frame's
-(`mjdrive.traffic.compile_kernels`), then the tasks' per-step kernels (ego updates, observations) and the physics chunks (`tasks.chunks`), by
-stepping a roundabout env (with pedestrians) and the concatenated urban route, and the scripted drivers' lane
-kernels on their routes. Prints where the cache is and how long it took."""
+(`mjdrive.traffic.compile_kernels`), then the tasks' per-step kernels (ego updates, observations) and the physics
+chunks (`tasks.chunks`), by stepping a roundabout env (with pedestrians) and the concatenated urban route, and the
+scripted drivers' lane kernels on their routes. Prints where the cache is and how long it took."""
 
 from __future__ import annotations
 
