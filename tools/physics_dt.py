@@ -429,8 +429,62 @@ def profile(dt: float, steps: int, task_name: str = "roundabout/d210") -> dict[s
         out["env step"] - ms["physics.advance (all)"] - sum(ms[key] for key in parts))
     n_raw = steps * env.n_sub_steps
     per_step = {key: 1e6 * seconds / max(n, 1) for key, (seconds, n) in kernel_runs.items()}
-    out["us per mj_step"] = {"raw": 1e6 * raw / n_raw, **per_step} if kernel_runs["rest"][1] else None
+    out["us per mj_step"] = {"raw": 1e6 * raw / n_raw, **per_step, **traffic_replay(env, min(steps, 1000))} \
+        if kernel_runs["rest"][1] else None
     return out
+
+
+def traffic_replay(env, steps: int, rounds: int = 5) -> dict[str, float]:
+    """Raw `mj_step` [us per physics step] of `steps` control steps of `env` (the ego braking) replayed in a tight
+    loop from the same state: with the traffic held where it starts ("held"), and with its poses written after
+    each substep as the env wrote them ("moving", the writes' own time taken off): what moving traffic costs
+    MuJoCo itself. Best of `rounds`."""
+    physics, traffic = env.physics, env.task.traffic
+    physics.python_chunks = True  # every substep's poses through `Traffic.advance`, recorded here
+    poses: list[tuple[np.ndarray, np.ndarray]] = []
+    advance = traffic.advance
+
+    def recorded(*args, **kwargs):
+        advance(*args, **kwargs)
+        poses.append((physics.data.mocap_pos.copy(), physics.data.mocap_quat.copy()))
+
+    hold = np.array([0.0, 0.0, 1.0])
+    env.reset()
+    state = {field: getattr(physics.data, field).copy() for field in ("qpos", "qvel", "act", "ctrl", "mocap_pos",
+                                                                       "mocap_quat")}
+    traffic.advance = recorded
+    try:
+        for _ in range(steps):
+            if env.step(hold).last():
+                break
+    finally:
+        del traffic.advance
+        physics.python_chunks = False
+    model, data = physics.model.ptr, mujoco.MjData(physics.model.ptr)
+    chunk = physics.substep_interval
+
+    def replay(write: bool, step: bool) -> float:
+        mujoco.mj_resetData(model, data)
+        for field, value in state.items():
+            getattr(data, field)[:] = value
+        mujoco.mj_forward(model, data)
+        mocap_pos, mocap_quat = data.mocap_pos, data.mocap_quat
+        start = time.perf_counter()
+        for pos, quat in poses:
+            if step:
+                mujoco.mj_step(model, data, chunk)
+            if write:
+                mocap_pos[:] = pos
+                mocap_quat[:] = quat
+        return time.perf_counter() - start
+
+    best = {"held": math.inf, "moving": math.inf, "writes": math.inf}
+    for _ in range(rounds):
+        best["held"] = min(best["held"], replay(False, True))
+        best["moving"] = min(best["moving"], replay(True, True))
+        best["writes"] = min(best["writes"], replay(True, False))
+    n = len(poses) * chunk
+    return {"held": 1e6 * best["held"] / n, "moving": 1e6 * (best["moving"] - best["writes"]) / n}
 
 
 CHUNKS_BEYOND_RAW = "physics chunks beyond raw mj_step (moving traffic, first chunk after Python, pose writes)"
@@ -451,7 +505,10 @@ def profile_section(dt: float, steps: int, task_name: str = "roundabout/d210") -
         lines += ["", f"MuJoCo per physics step in the compiled chunks: {per_step['first']:.2f} us in a control step's "
                   f"first chunk run alone (right after the step's Python, a decision due after it), "
                   f"{per_step['rest']:.2f} us in all other runs; raw `mj_step` in a tight loop from the env's state "
-                  f"(traffic held): {per_step['raw']:.2f} us."]
+                  f"(traffic held): {per_step['raw']:.2f} us. The same physics replayed in a tight loop (a fresh "
+                  f"episode's first steps, best of 5): {per_step['held']:.2f} us with the traffic held, "
+                  f"{per_step['moving']:.2f} us with the traffic moving as in the env (the pose writes' own time "
+                  f"taken off): {per_step['moving'] / per_step['held'] - 1:.1%} more for MuJoCo itself."]
     return lines
 
 
