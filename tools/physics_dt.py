@@ -20,7 +20,8 @@ Sections (--sections, all by default):
               waypoints/straight and roundabout/d210, every timestep interleaved in rounds (best round kept),
               as simulated seconds per wall second and as ratios to the 2 ms figure.
   profile     (only when named) one env step of roundabout/d210 (or --profile-tasks) at the default step, part
-              by part.
+              by part; MuJoCo's cost per physics step in place against a tight loop, and with the traffic's
+              motion replayed.
 """
 
 from __future__ import annotations
@@ -346,8 +347,9 @@ def throughput_section(dts: list[float], seconds: float, rounds: int) -> list[st
 def profile(dt: float, steps: int, task_name: str = "roundabout/d210") -> dict[str, float]:
     """Wall time [ms] per env step of a task with traffic (features, the ego braking where it starts: at its
     yield line on the roundabout) by part: each part's functions are wrapped with a timer on this env only.
-    Also the compiled chunks' MuJoCo time per physics step [us] where a control step's physics begins (right after
-    the step's Python) and elsewhere, against raw `mj_step` in a tight loop from the env's own state."""
+    Also MuJoCo's time per physics step [us] in the compiled chunks (a control step's first chunk run alone, right
+    after the step's Python, and all other runs), raw `mj_step` in a tight loop from the env's own state, and the
+    traffic's motion replayed (`traffic_replay`)."""
     env = load(*task_name.split("/"), dt)
     env.reset()
     task, traffic, physics = env.task, env.task.traffic, env.physics
@@ -418,8 +420,9 @@ def profile(dt: float, steps: int, task_name: str = "roundabout/d210") -> dict[s
     out[handed_back] = ms["traffic: advance (all)"] - ms[decisions]
     out[decisions] = ms[decisions]
     out["contact samples handed back to Python"] = ms["contact samples (every 0.02 s)"]
-    out[CHUNKS_BEYOND_RAW] = (ms["physics.advance (all)"] - out["raw mj_step of a control step"]
-                              - ms["traffic: advance (all)"] - ms["contact samples (every 0.02 s)"])
+    beyond_raw = "physics chunks beyond raw mj_step (moving traffic, first chunk after Python, pose writes)"
+    out[beyond_raw] = (ms["physics.advance (all)"] - out["raw mj_step of a control step"]
+                       - ms["traffic: advance (all)"] - ms["contact samples (every 0.02 s)"])
     for key in ("task: action to controls", "task: ego state, sensors, reward", "task: observation"):
         out[key] = ms[key]
     resets = "episode resets (traffic warm-up), averaged over the steps"
@@ -458,7 +461,7 @@ def traffic_replay(env, steps: int, rounds: int = 5) -> dict[str, float]:
             if env.step(hold).last():
                 break
     finally:
-        del traffic.advance
+        traffic.advance = advance
         physics.python_chunks = False
     model, data = physics.model.ptr, mujoco.MjData(physics.model.ptr)
     chunk = physics.substep_interval
@@ -485,9 +488,6 @@ def traffic_replay(env, steps: int, rounds: int = 5) -> dict[str, float]:
         best["writes"] = min(best["writes"], replay(True, False))
     n = len(poses) * chunk
     return {"held": 1e6 * best["held"] / n, "moving": 1e6 * (best["moving"] - best["writes"]) / n}
-
-
-CHUNKS_BEYOND_RAW = "physics chunks beyond raw mj_step (moving traffic, first chunk after Python, pose writes)"
 
 
 def profile_section(dt: float, steps: int, task_name: str = "roundabout/d210") -> list[str]:

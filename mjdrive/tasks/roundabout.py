@@ -178,6 +178,7 @@ class RoundaboutTask(DrivingTask):
         self._lengths = 2 * self.traffic.half_size[:, :2]
         self.route: list[int] = []
         self.route_lane: Lane | None = None
+        self._corner_buffers = (np.empty((4, 2)), np.empty(4))  # `roundabout_ego`'s corners [m] and their offsets [m]
 
     # --- episode ----------------------------------------------------------------------------------
     def initialize_episode(self, physics: Physics) -> None:
@@ -250,7 +251,7 @@ class RoundaboutTask(DrivingTask):
             frame = self.route_frame
             lo, hi = frame.window()
             qa, va = self.vehicle.state_addresses
-            self.corners, self.corner_offsets = np.empty((4, 2)), np.empty(4)
+            self.corners, self.corner_offsets = self._corner_buffers  # filled in place: read within this step only
             (x, y, yaw, self.speed, self._left, self.yaw_rate, c, s, self.route_s, self.lane_offset, frame.segment,
              self.heading_error) = kernels.roundabout_ego(
                 data.qpos, data.qvel, qa, va, self.params.length, self.params.width, frame.x0, frame.y0, frame.tx,
