@@ -22,6 +22,7 @@ import mujoco
 import numpy as np
 
 from mjdrive import suite
+from mjdrive.comfort import load_filter
 from mjdrive.world import PHYSICS_TIMESTEP
 
 CRUISE_ACTION = np.array([0.25, 0.0, 0.0])  # gentle throttle, straight ahead
@@ -49,7 +50,9 @@ def bench_parts(tasks: list[str], levels: list[str], highway: bool, urban: list[
 
 
 def calls_per_second(step: Callable[[], None], seconds: float) -> float:
-    """Calls of `step` per wall second, over about `seconds`."""
+    """Calls of `step` per wall second, over about `seconds` (after one call to warm up, and with scipy.signal,
+    which an env imports at its first episode end, already imported: a one-off, not a step's cost)."""
+    load_filter()
     step()  # warm-up
     calls, start = 0, time.perf_counter()
     while True:
@@ -166,7 +169,9 @@ def run_benchmarks(tasks: list[str], seconds: float = 3.0, image_size: int = 128
 
 
 def _timed_rate(step: Callable[[], None], seconds: float, counter: Callable[[], float]) -> tuple[float, float]:
-    """(calls of `step` per wall second, share of that wall time that `counter` [s] grew by)."""
+    """(calls of `step` per wall second, share of that wall time that `counter` [s] grew by), warmed up as
+    `calls_per_second`."""
+    load_filter()
     step()
     before, calls, start = counter(), 0, time.perf_counter()
     while True:

@@ -29,6 +29,7 @@ episode, including an empty one; bad inputs (shapes, dt <= 0, NaN or inf) raise 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -144,12 +145,19 @@ def acceleration_profile(
     w = savgol_window(n, dt, window_s, polyorder)
     if w == 0:
         return AccelerationProfile(time, speed, *(np.full(n, np.nan) for _ in range(4)), window=0)
-    from scipy.signal import savgol_filter  # here, not at the top: importing scipy.signal takes ~0.5 s
-
+    savgol_filter = load_filter()
     a_xy = savgol_filter(v, w, polyorder, deriv=1, delta=dt, axis=0)  # [m/s^2] world frame
     a = np.stack([np.einsum("ij,ij->i", a_xy, heading), np.einsum("ij,ij->i", a_xy, left)])  # (2, N)
     jerk = savgol_filter(a, w, polyorder, deriv=1, delta=dt, axis=1)  # [m/s^3] (2, N)
     return AccelerationProfile(time, speed, a[0], a[1], jerk[0], jerk[1], window=w)
+
+
+def load_filter() -> Callable:
+    """scipy.signal's `savgol_filter`, imported on first use, not with this module: importing scipy.signal takes
+    ~0.5 s, which an env pays at its first episode end."""
+    from scipy.signal import savgol_filter
+
+    return savgol_filter
 
 
 def comfort_metrics(

@@ -27,6 +27,7 @@ from mjdrive.agents.config import apply_overrides, load_config
 from mjdrive.agents.env_factory import make_training_env
 from mjdrive.agents.evaluate import evaluate
 from mjdrive.cli import ArgumentParser, int_at_least, positive_float, run_reporting_errors
+from mjdrive.comfort import load_filter
 from mjdrive.envs.fanout import fan_out
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -87,13 +88,15 @@ def busy_processes() -> str:
     return "; ".join(busy) or "none"
 
 
-def bench_eval(checkpoint: Path, episodes: int, seed: int, rounds: int) -> dict[int, dict]:
+def bench_eval(checkpoint: Path, episodes: int, seed: int, rounds: int) -> dict:
     """{workers: {steps_per_s, wall_s, steps}} for the same episodes, the best of `rounds` rounds (0, 1, 2 workers
-    in turn); raises if the rows differ."""
+    in turn), and "rounds": each round's {workers: steps_per_s}; raises if the rows differ."""
     evaluate(checkpoint, episodes=2, seed=seed, workers=2)  # warm-up: files in the page cache, first imports
-    best: dict[int, dict] = {}
+    best: dict = {"rounds": []}
     for _ in range(rounds):
-        for workers, result in _eval_round(checkpoint, episodes, seed).items():
+        measured = _eval_round(checkpoint, episodes, seed)
+        best["rounds"].append({workers: result["steps_per_s"] for workers, result in measured.items()})
+        for workers, result in measured.items():
             if workers not in best or result["wall_s"] < best[workers]["wall_s"]:
                 best[workers] = result
     return best
@@ -130,16 +133,19 @@ def policy(algo: str, agent):
 
 def bench_collection(name: str, overrides: list[str], seconds: float, rounds: int) -> dict:
     """{workers: {steps_per_s, act_s_per_step, ...}} (best of `rounds`), plus "threads": in process with the
-    config's physics threads when it has more than one (workers use one each, and so does workers=0 here)."""
+    config's physics threads when it has more than one (workers use one each, and so does workers=0 here), and
+    "rounds": each round's {workers: steps_per_s}."""
     config = apply_overrides(load_config(name), overrides)
     variants = [(w, {"workers": w, "nthread": 1}) for w in WORKERS]
     if int(config.get("nthread", 1)) > 1:
         variants.append(("threads", {"workers": 0}))
-    best: dict = {}
+    best: dict = {"rounds": []}
     for _ in range(rounds):
+        best["rounds"].append({})
         for key, settings in variants:
             wait_idle()
             result = _collect({**config, **settings}, seconds)
+            best["rounds"][-1][key] = result["steps_per_s"]
             if key not in best or result["steps_per_s"] > best[key]["steps_per_s"]:
                 best[key] = result
             print(f"collect {name} {key}: {result['steps_per_s']:.1f} env steps/s (acting "
@@ -184,6 +190,15 @@ def ratio(a: float, b: float) -> str:
     return f"{a / b:.2f}"
 
 
+def paired(rounds: list[dict], top: int, bottom: int) -> str:
+    """The ratio of two rows measured back to back in each round: "median (lowest-highest)" over the rounds
+    (a slow phase of the machine then weighs on both rows of a ratio alike)."""
+    values = sorted(r[top] / r[bottom] for r in rounds)
+    n = len(values)
+    median = values[n // 2] if n % 2 else (values[n // 2 - 1] + values[n // 2]) / 2
+    return f"{median:.2f} ({values[0]:.2f}-{values[-1]:.2f})" if n > 1 else f"{median:.2f}"
+
+
 def report(evals: dict, trains: dict, args: argparse.Namespace, load_before: str, load_after: str,
            wall: float, busy: str) -> str:
     command = "python -m tools.bench_parallel " + shlex.join(sys.argv[1:])
@@ -195,8 +210,10 @@ def report(evals: dict, trains: dict, args: argparse.Namespace, load_before: str
         "",
         f"1-min / 5-min / 15-min load average: {load_before} at the start, {load_after} at the end "
         f"(the run took {wall / 60:.1f} min). Every figure below comes from this one run; ratios compare figures of "
-        f"this run; each is the best of {args.rounds} measurements (rows in turn, after a warm-up). Other busy "
-        "processes at the start: " + busy + ". " + idle_line() + ".",
+        f"this run; each rate is the best of {args.rounds} measurements (a round measures the rows in turn, after a "
+        "warm-up), and the bold ratios divide those bests. The per-round columns divide the two rows of each round "
+        "instead (measured back to back, so a slow phase of the machine weighs on both): their median, and lowest "
+        "to highest in brackets. Other busy processes at the start: " + busy + ". " + idle_line() + ".",
         "",
         "## Evaluation (`mjdrive eval --workers N`)",
         "",
@@ -206,13 +223,15 @@ def report(evals: dict, trains: dict, args: argparse.Namespace, load_before: str
         "was started before the first row).",
         "",
         "| observation | checkpoint | steps | in process | 1 worker | 2 workers | 2 workers / 1 worker "
-        "| 1 worker / in process | first episode back [s]: in process, 1, 2 workers |",
-        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | --- |",
+        "| 1 worker / in process | per round: 2 / 1 worker | per round: 1 worker / in process "
+        "| first episode back [s]: in process, 1, 2 workers |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |",
     ]
     for obs, (checkpoint, result) in evals.items():
         r = {w: result[w]["steps_per_s"] for w in WORKERS}
         lines.append(f"| {obs} | `{checkpoint.name}` | {result[0]['steps']} | {r[0]:.1f} | {r[1]:.1f} | {r[2]:.1f} "
-                     f"| **{ratio(r[2], r[1])}** | {ratio(r[1], r[0])} | "
+                     f"| **{ratio(r[2], r[1])}** | {ratio(r[1], r[0])} | {paired(result['rounds'], 2, 1)} | "
+                     f"{paired(result['rounds'], 1, 0)} | "
                      + ", ".join(f"{result[w]['first_s']:.1f}" for w in WORKERS) + " |")
     lines += [
         "",
@@ -225,15 +244,16 @@ def report(evals: dict, trains: dict, args: argparse.Namespace, load_before: str
         "acting = this process's policy time per batched step.",
         "",
         "| config | in process | in process, config's physics threads | 1 worker | 2 workers | 2 workers / 1 worker "
-        "| 1 worker / in process | acting [ms/step] |",
-        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+        "| 1 worker / in process | per round: 2 / 1 worker | per round: 1 worker / in process | acting [ms/step] |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for label, result in trains.items():
         r = {w: result[w]["steps_per_s"] for w in WORKERS}
         threads = (f"{result['threads']['steps_per_s']:.1f} ({result['threads']['nthread']} threads)"
                    if "threads" in result else "-")
         lines.append(f"| {label} | {r[0]:.1f} | {threads} | {r[1]:.1f} | {r[2]:.1f} | **{ratio(r[2], r[1])}** | "
-                     f"{ratio(r[1], r[0])} | {1000 * result[2]['act_s_per_step']:.1f} |")
+                     f"{ratio(r[1], r[0])} | {paired(result['rounds'], 2, 1)} | {paired(result['rounds'], 1, 0)} | "
+                     f"{1000 * result[2]['act_s_per_step']:.1f} |")
     lines += [
         "",
         "## Projection for bigger nodes (not measured)",
@@ -291,12 +311,14 @@ def main(argv: list[str] | None = None) -> int:
                         help="evaluation episodes per row (200: the smallest table the study tools print)")
     parser.add_argument("--seed", type=int_at_least(0), default=20_000)
     parser.add_argument("--seconds", type=positive_float, default=10.0, help="collection time per training row [s]")
-    parser.add_argument("--rounds", type=int_at_least(1), default=2, help="measurements per figure; the best is kept")
+    parser.add_argument("--rounds", type=int_at_least(1), default=2,
+                        help="rounds of measurements (rows in turn); the best rate of each row is kept")
     parser.add_argument("--out", default=None, help="write the markdown report here")
     args = parser.parse_args(argv)
     import torch
 
     torch.set_num_threads(1)  # as `mjdrive train` and `eval` (the configs' torch_threads)
+    load_filter()  # scipy.signal, as the workers' forkserver preloads it: the in-process rows do not pay its import
     busy = busy_processes()  # before this script starts any
     fan_out(operator.add, 0, range(2), workers=1)  # start the forkserver (it preloads torch) before any timing
     load_before, start = load(), time.perf_counter()
