@@ -18,6 +18,7 @@ import operator
 import os
 import platform
 import shlex
+import statistics
 import sys
 import time
 from pathlib import Path
@@ -193,10 +194,9 @@ def ratio(a: float, b: float) -> str:
 def paired(rounds: list[dict], top: int, bottom: int) -> str:
     """The ratio of two rows measured back to back in each round: "median (lowest-highest)" over the rounds
     (a slow phase of the machine then weighs on both rows of a ratio alike)."""
-    values = sorted(r[top] / r[bottom] for r in rounds)
-    n = len(values)
-    median = values[n // 2] if n % 2 else (values[n // 2 - 1] + values[n // 2]) / 2
-    return f"{median:.2f} ({values[0]:.2f}-{values[-1]:.2f})" if n > 1 else f"{median:.2f}"
+    values = [r[top] / r[bottom] for r in rounds]
+    median = statistics.median(values)
+    return f"{median:.2f} ({min(values):.2f}-{max(values):.2f})" if len(values) > 1 else f"{median:.2f}"
 
 
 def report(evals: dict, trains: dict, args: argparse.Namespace, load_before: str, load_after: str,
