@@ -52,16 +52,11 @@ def bench_parts(tasks: list[str], levels: list[str], highway: bool, urban: list[
 def calls_per_second(step: Callable[[], None], seconds: float) -> float:
     """Calls of `step` per wall second, over about `seconds` (after one call to warm up, and with scipy.signal,
     which an env imports at its first episode end, already imported: a one-off, not a step's cost)."""
-    load_filter()
-    step()  # warm-up
-    calls, start = 0, time.perf_counter()
-    while True:
-        for _ in range(10):
-            step()
-        calls += 10
-        elapsed = time.perf_counter() - start
-        if elapsed >= seconds:
-            return calls / elapsed
+    return _timed_rate(step, seconds, _no_counter)[0]
+
+
+def _no_counter() -> float:
+    return 0.0
 
 
 def bench_task(name: str, seconds: float = 3.0, image_size: int = 128,
@@ -169,10 +164,10 @@ def run_benchmarks(tasks: list[str], seconds: float = 3.0, image_size: int = 128
 
 
 def _timed_rate(step: Callable[[], None], seconds: float, counter: Callable[[], float]) -> tuple[float, float]:
-    """(calls of `step` per wall second, share of that wall time that `counter` [s] grew by), warmed up as
-    `calls_per_second`."""
+    """(calls of `step` per wall second, share of that wall time that `counter` [s] grew by), over about `seconds`,
+    warmed up as `calls_per_second` says."""
     load_filter()
-    step()
+    step()  # warm-up
     before, calls, start = counter(), 0, time.perf_counter()
     while True:
         for _ in range(10):
