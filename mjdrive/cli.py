@@ -322,11 +322,13 @@ def cmd_logs(args) -> int:
 
 def cmd_bench(args) -> int:
     from mjdrive.bench import bench_parts, run_benchmarks, run_roundabout_benchmarks, run_urban_benchmarks
+    from mjdrive.bench_operative import OPERATIVE_PARTS, run_operative_benchmark
     from mjdrive.bench_sensors import SENSOR_PARTS, run_sensor_benchmarks
     from mjdrive.progress import Progress
 
     parts = []
-    total = bench_parts(args.tasks, args.roundabout, args.highway, args.urban) + SENSOR_PARTS * len(args.sensors)
+    total = (bench_parts(args.tasks, args.roundabout, args.highway, args.urban) + SENSOR_PARTS * len(args.sensors)
+             + OPERATIVE_PARTS * args.operative)
     with Progress(total=total, desc="bench", unit="part") as bar:
         def tick(label: str) -> None:
             bar.set_postfix_str(label, refresh=False)
@@ -341,6 +343,8 @@ def cmd_bench(args) -> int:
             parts.append(run_urban_benchmarks(args.urban, seconds=args.seconds, tick=tick))
         if args.sensors:
             parts.append(run_sensor_benchmarks(args.sensors, seconds=args.seconds, tick=tick))
+        if args.operative:
+            parts.append(run_operative_benchmark(seconds=args.seconds, tick=tick))
     report = "\n\n".join(parts)
     print(report)
     if args.out:
@@ -475,6 +479,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="also run highway-env's roundabout-v0 when it is installed")
     bench.add_argument("--sensors", nargs="*", type=task_name, default=["roundabout/d120"], metavar="TASK",
                        help="tasks for the extra sensors' cost table: depth, segmentation, range ring (none: skip)")
+    bench.add_argument("--operative", action=argparse.BooleanOptionalAction, default=True,
+                       help="study 002's operative level: its MPC and per-step cost, decision env against the "
+                            "throttle/steer/brake env")
     bench.add_argument("--seconds", type=positive_float, default=3.0, help="wall time per measurement [s]")
     bench.add_argument("--image-size", type=int_at_least(16, 1024), default=128, help="camera side [px]")
     bench.add_argument("--out", default=None, help="also write the report to this file (default: print it only)")

@@ -335,3 +335,21 @@ def parse_task_kwargs(pairs: Sequence[str]) -> dict[str, Any]:
             raise ValueError(f"--task-kwarg expects KEY=VALUE, got {pair!r}")
         out[key] = parse_value(value)
     return out
+
+
+def discrete_index(action: Any, names: Sequence[str], action_set: str) -> int:
+    """`action` as an index into the discrete action set `action_set` whose actions are `names`: what gymnasium's
+    `Discrete` accepts (a Python or numpy integer, a 0-d integer array; not a bool), in range. Anything else (a
+    float, even integral, a string, an array of another shape) raises ValueError naming the action set, so a
+    policy that emits the wrong type fails loudly instead of driving with a truncated index."""
+    integral = (isinstance(action, (int, np.integer)) or (isinstance(action, np.ndarray) and action.shape == ()
+                                                          and np.issubdtype(action.dtype, np.integer)))
+    if not integral or isinstance(action, (bool, np.bool_)):
+        raise ValueError(f"{action_set} actions are integer indices 0..{len(names) - 1} "
+                         f"({', '.join(f'{i} {n}' for i, n in enumerate(names))}), got {action!r} "
+                         f"({type(action).__name__})")
+    index = int(action)
+    if not 0 <= index < len(names):
+        raise ValueError(f"{action_set} action index must be in 0..{len(names) - 1} "
+                         f"({', '.join(f'{i} {n}' for i, n in enumerate(names))}), got {index}")
+    return index

@@ -1,4 +1,6 @@
-"""Built-in policies for `mjdrive run`: a privileged pure-pursuit driver, random and idle policies."""
+"""Built-in policies for `mjdrive run`: privileged scripted drivers (pure pursuit, the autopilot), random and idle
+policies, and on the urban tasks' decision action set (`decisions=True`) the rule-based decisions and the two
+constant ones."""
 
 from __future__ import annotations
 
@@ -10,7 +12,8 @@ import numpy as np
 from mjdrive.control import PurePursuit
 
 Policy = Callable[[dict], np.ndarray]
-POLICIES = ("pure_pursuit", "always_go", "autopilot", "random", "idle")
+POLICIES = ("pure_pursuit", "always_go", "autopilot", "random", "idle", "rules", "always_drive", "always_stop")
+DECISION_POLICIES = ("rules", "always_drive", "always_stop")  # these need the decision action set
 
 
 def pure_pursuit_policy(env: gym.Env, cruise: float | None = None) -> Policy:
@@ -74,8 +77,84 @@ def autopilot_policy(env: gym.Env) -> Policy:
     return act
 
 
+def decision_task(env: gym.Env, policy: str):
+    """The urban task under `env` if it takes decisions; else ValueError saying how to get them."""
+    task = env.unwrapped.task
+    if getattr(task, "decisions", None) is None:
+        raise ValueError(f"the {policy} policy issues decisions: use an urban task with the decision action set "
+                         "(--task-kwarg decisions=true)")
+    return task
+
+
+# Gap acceptance of the rule-based lane changes (privileged: ground truth of the lanes beside the ego).
+OVERTAKE_RANGE = 40.0  # [m] a leader nearer than this that is slower than the ego wants to drive is overtaken
+OVERTAKE_MARGIN = 2.0  # [m/s] ... by at least this much
+FRONT_GAP = 10.0  # [m] room needed ahead in the target lane, plus FRONT_HEADWAY x own speed
+FRONT_HEADWAY = 0.8  # [s]
+REAR_GAP = 8.0  # [m] room needed behind in the target lane, plus REAR_HEADWAY x its speed and the closing speed x
+REAR_HEADWAY = 0.6  # [s]
+CLOSING_TIME = 3.0  # [s]
+
+
+def _lane_free(gaps: tuple[float, float, float, float], speed: float) -> bool:
+    """Whether a lane with (gap ahead, its speed, gap behind, its speed) [m, m/s] takes the ego at `speed`."""
+    ahead, v_ahead, behind, v_behind = gaps
+    front_ok = ahead >= FRONT_GAP + FRONT_HEADWAY * speed or (ahead > FRONT_GAP and v_ahead > speed)
+    rear_ok = behind >= REAR_GAP + REAR_HEADWAY * v_behind + CLOSING_TIME * max(v_behind - speed, 0.0)
+    return front_ok and rear_ok
+
+
+def rules_policy(env: gym.Env) -> Policy:
+    """Rule-based decisions from ground truth (privileged): at the roundabout, the crossroad and the merge, stop
+    while the urban right-of-way rules (the conflict zones every vehicle obeys, `Traffic.give_way`) make the ego
+    wait, else drive; on the two-lane road, overtake a slower leader when the left lane has room ahead and behind
+    (`_lane_free`), and come back once the right lane has room beside and ahead."""
+    task = decision_task(env, "rules")
+    physics = env.unwrapped.dm_env.physics
+    names = task.decisions
+    index = {name: i for i, name in enumerate(names)}
+
+    def act(observation: dict) -> int:
+        scenario = task.active_scenario()
+        if scenario in ("roundabout", "crossroad", "merge"):
+            must_wait = task.traffic.give_way(task.ego_state(physics)).stop < np.inf
+            return index["stop" if must_wait else "drive"]
+        if scenario != "lane_change":
+            return 0  # follow the path: any action
+        keep = index.get("keep", index.get("drive"))
+        route = task.route_traffic
+        route.observe(task.route_s, task.traffic, track=False)
+        target, width = task.operative.lanes()[-1], route.lane_width[route.route_index(task.route_s)]
+        speed, wanted = task.speed, task.operative.profile.speed(task.route_s)
+        if target == 0.0:  # in the route's lane: overtake a slow leader
+            ahead, v_ahead, _, _ = route.lane_gaps(0.0)
+            slow = ahead < OVERTAKE_RANGE and v_ahead < wanted - OVERTAKE_MARGIN
+            return index["left"] if slow and _lane_free(route.lane_gaps(width), speed) else keep
+        back = _lane_free(route.lane_gaps(0.0), speed)  # in the left lane: back once the right lane has room
+        return index["right"] if back else keep
+
+    return act
+
+
+def constant_decision_policy(env: gym.Env, name: str) -> Policy:
+    """Always the same decision: "drive" (keep in the lane-change scenario) or "stop"."""
+    task = decision_task(env, f"always_{name}")
+    choice = name if name in task.decisions else "keep"
+    if choice not in task.decisions:
+        raise ValueError(f"urban task {task.scenario} has no {name!r} decision; its actions: {task.decisions}")
+    action = task.decisions.index(choice)
+    return lambda observation: action
+
+
 def make_policy(name: str, env: gym.Env, seed: int = 0) -> Policy:
     """A policy by name; unknown names raise ValueError listing the valid ones."""
+    if name == "rules":
+        return rules_policy(env)
+    if name in ("always_drive", "always_stop"):
+        return constant_decision_policy(env, name.removeprefix("always_"))
+    if getattr(env.unwrapped.task, "decisions", None) is not None and name not in ("random",):
+        raise ValueError(f"the {name} policy drives with throttle, steer and brake; this env takes decisions "
+                         f"(use {', '.join(DECISION_POLICIES)} or random)")
     if name == "pure_pursuit":
         return pure_pursuit_policy(env)
     if name == "always_go":

@@ -60,7 +60,8 @@ def test_list_names_every_task_and_gymnasium_id_and_each_tasks_keywords(tmp_path
 def test_bench_with_tiny_settings_prints_and_writes_its_tables(tmp_path):
     out = tmp_path / "bench.md"
     done = mjdrive("bench", "--tasks", "waypoints/straight", "--roundabout", "d120", "--urban", "--no-highway",
-                   "--sensors", "--seconds", "0.2", "--image-size", "16", "--out", str(out), cwd=tmp_path)
+                   "--sensors", "--no-operative", "--seconds", "0.2", "--image-size", "16", "--out", str(out),
+                   cwd=tmp_path)
     report = out.read_text()
     assert report.strip() in done.stdout and f"wrote {out}" in done.stdout
     waypoints = table_rows(report, "waypoints/straight")
@@ -74,6 +75,21 @@ def test_bench_with_tiny_settings_prints_and_writes_its_tables(tmp_path):
     assert int(roundabout[0][1]) == 22  # d120's road users
     progress = [line for line in done.stderr.splitlines() if line.startswith("bench: ")]
     assert progress[-1].endswith("roundabout/d120: camera env]"), progress  # each part named by its task
+
+
+def test_bench_of_the_operative_level_measures_its_cost(tmp_path):
+    done = mjdrive("bench", "--tasks", "--roundabout", "--urban", "--sensors", "--operative", "--seconds", "0.5",
+                   cwd=tmp_path)
+    decision = table_rows(done.stdout, "decisions (operative level underneath)")
+    pedal = table_rows(done.stdout, "throttle, steer, brake")
+    solve = table_rows(done.stdout, "MPC solve (OSQP)")
+    level = table_rows(done.stdout, "operative level per control period (MPC, LQR, pedals)")
+    assert len(decision) == len(pedal) == len(solve) == len(level) == 1, done.stdout
+    assert decision[0][1] == "0.5" and pedal[0][1] == "0.1"  # [s] env steps
+    assert float(decision[0][4].rstrip("x")) > 0 and float(decision[0][3]) > 0 and float(pedal[0][3]) > 0
+    median, p99 = float(solve[0][1]), float(solve[0][2])
+    assert 0 < median <= p99 and 0 < float(level[0][1]) <= float(level[0][2])
+    assert float(level[0][1]) >= median  # the level's step includes its MPC solve
 
 
 def test_train_a_few_hundred_steps_writes_a_run_folder_that_eval_reads(tmp_path):

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from dm_env import specs
 
 from mjdrive import ConfigError, suite
 from mjdrive.agents.config import apply_overrides
@@ -197,7 +198,10 @@ def test_fuzz_every_task_gives_a_working_env_or_a_config_error():
                 timestep = env.reset()
                 spec = env.action_spec()
                 for _ in range(5):
-                    action = rng.uniform(spec.minimum - 0.5, spec.maximum + 0.5)  # out-of-range values are clipped
+                    if isinstance(spec, specs.DiscreteArray):  # the urban decision actions
+                        action = int(rng.integers(spec.num_values))
+                    else:
+                        action = rng.uniform(spec.minimum - 0.5, spec.maximum + 0.5)  # out-of-range values are clipped
                     timestep = env.step(action)
                     for key, value in timestep.observation.items():
                         assert value.size > 0 and value.shape == env.observation_spec()[key].shape, (key, kwargs)

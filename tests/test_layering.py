@@ -4,7 +4,7 @@ Layers, top to bottom (a module may import from its own layer or a lower one, ne
 
 | layer | modules | what they are |
 | --- | --- | --- |
-| cli | `mjdrive` (the package's `__init__`), `cli`, `drive`, `bench`, `bench_sensors` | commands and the facade |
+| cli | `mjdrive` (its `__init__`), `cli`, `drive`, `bench`, `bench_sensors`, `bench_operative` | commands, facade |
 | agents | `agents` (the `agents/` folder) | learners, evaluation, ensembles |
 | envs | `envs`, `policies`, `record.replay` | gymnasium envs, scripted policies, replaying a log in an env |
 | record | `record`, `video` | MCAP episode logs, summaries, videos of dm-control episodes |
@@ -30,7 +30,8 @@ ROOT = Path(__file__).resolve().parents[1]
 SOURCES = {"mjdrive": ROOT / "mjdrive", "mjdrive.agents": ROOT / "agents"}  # package -> its folder
 
 LAYERS = {  # top to bottom
-    "cli": ("mjdrive", "mjdrive.cli", "mjdrive.drive", "mjdrive.bench", "mjdrive.bench_sensors"),
+    "cli": ("mjdrive", "mjdrive.cli", "mjdrive.drive", "mjdrive.bench", "mjdrive.bench_sensors",
+            "mjdrive.bench_operative"),
     "agents": ("mjdrive.agents",),
     "envs": ("mjdrive.envs", "mjdrive.policies", "mjdrive.record.replay"),
     "record": ("mjdrive.record", "mjdrive.video"),

@@ -104,6 +104,7 @@ class BatchedEnv:
         dm = self.bases[0].dm_env
         self.control_timestep = float(dm.control_timestep())  # [s]
         self.n_sub_steps = dm.n_sub_steps
+        self.tick_steps = dm.tick_steps  # physics steps per control period
         self.max_episode_steps = dm.max_episode_steps
         self._models = [b.dm_env.physics.model.ptr for b in self.bases]
         self._datas = [b.dm_env.physics.data.ptr for b in self.bases]
@@ -207,9 +208,14 @@ class BatchedEnv:
         return self.envs[i].action(action) if self.wrapped_actions else action
 
     def step_physics(self) -> None:
-        """Advance every copy's physics one control period (between the copies' `before_physics` and
-        `after_physics`), the substep callbacks between chunks as in `Physics.advance`."""
-        step_in_chunks([base.dm_env.physics for base in self.bases], self.n_sub_steps, self._step_all)
+        """Advance every copy's physics one env step (between the copies' `before_physics` and `after_physics`):
+        one call of the backend per control period (each copy's `before_tick` first), the substep callbacks
+        between chunks as in `Physics.advance`."""
+        physics = [base.dm_env.physics for base in self.bases]
+        for k in range(self.bases[0].task.control_ticks):
+            for base in self.bases:
+                base.dm_env.before_tick(k)
+            step_in_chunks(physics, self.tick_steps, self._step_all)
 
     def _step_all(self, n_sub: int) -> None:
         """`n_sub` physics steps of every copy in one call of the backend."""

@@ -95,9 +95,13 @@ class DrivingGymEnv(gym.Env):
         spaces = {name: spec_to_space(spec, reach) for name, spec in self.dm_env.observation_spec().items()}
         self.observation_space = gym.spaces.Dict(spaces)
         action_spec = self.dm_env.action_spec()
-        self.action_space = gym.spaces.Box(
-            action_spec.minimum.astype(np.float32), action_spec.maximum.astype(np.float32), dtype=np.float32
-        )
+        self.decisions = isinstance(action_spec, specs.DiscreteArray)  # the urban tasks' decision action set
+        if self.decisions:
+            self.action_space = gym.spaces.Discrete(action_spec.num_values)
+        else:
+            self.action_space = gym.spaces.Box(
+                action_spec.minimum.astype(np.float32), action_spec.maximum.astype(np.float32), dtype=np.float32
+            )
         self.render_mode = render_mode
         self.render_camera, self.render_size = render_camera, render_size
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.dm_env.control_timestep())}
@@ -122,7 +126,7 @@ class DrivingGymEnv(gym.Env):
     # The batched env (mjdrive.envs.batched) steps its copies' physics together, between these halves of
     # `step` (after an episode's end it resets the copy instead of stepping it).
     def before_physics(self, action) -> None:
-        """First half of `step`: the task applies the (throttle, steer, brake) `action`."""
+        """First half of `step`: the task applies the (throttle, steer, brake) `action` (or takes the decision)."""
         self.dm_env.before_physics(self.command(action))
 
     def after_physics(self):
@@ -130,9 +134,11 @@ class DrivingGymEnv(gym.Env):
         truncated, info) as `step` returns them."""
         return self._gym_step(self.dm_env.after_physics())
 
-    @staticmethod
-    def command(action) -> np.ndarray:
-        """`action` as a float64 (throttle, steer, brake) array; NaN or inf raise."""
+    def command(self, action) -> np.ndarray | int:
+        """`action` as a float64 (throttle, steer, brake) array (NaN or inf raise); a decision as it is (the task
+        checks it is an index of its action set)."""
+        if self.decisions:
+            return action
         action = np.asarray(action, dtype=np.float64)
         if not np.all(np.isfinite(action)):
             raise ValueError(f"action contains NaN or inf: {action}")

@@ -60,8 +60,12 @@ class Episode:
                 "mocap_quat": np.array([list(s.mocap_quat) for s in states]).reshape(len(states), -1)}
 
     def actions(self) -> np.ndarray:
-        """(steps, 3) applied (throttle, steer, brake)."""
-        return np.array([[a["throttle"], a["steer"], a["brake"]] for a in self.json("/action")]).reshape(-1, 3)
+        """(steps, 3) applied (throttle, steer, brake); for an env of the decision action set, (steps,) the
+        decisions' indices."""
+        messages = self.json("/action")
+        if messages and "decision" in messages[0]:
+            return np.array([a["decision"] for a in messages], dtype=np.int64)
+        return np.array([[a["throttle"], a["steer"], a["brake"]] for a in messages]).reshape(-1, 3)
 
     @property
     def readable_steps(self) -> int:

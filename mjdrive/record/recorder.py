@@ -27,12 +27,17 @@ Topics (log times: the episode's wall-clock start + simulated time, so plots sta
 | /sensors/depth | foxglove.RawImage 32FC1 | every step of an env with the `depth` sensor (`sensors=`): [m] |
 | /sensors/segmentation | foxglove.RawImage mono8 | every step with `segmentation`: class index x SEGMENT_SCALE |
 | /sensors/range | foxglove.LaserScan | every step with `range`: the ring's ranges [m], frame ego, first ray ahead |
+| /operative | JSON mjdrive.OperativeStep | `decisions`: every control period (10 Hz): the operative level's state |
+| /operative/plan | JSON mjdrive.OperativePlan | `decisions`: every step: the MPC's planned s, v, a |
+| /scene/plan | foxglove.SceneUpdate | `decisions`: every step: the path tracked ahead, the stop point |
 
-/tf, /ego/state, /physics and /scene/road_users also carry the state right after reset (step 0), so they hold
-steps + 1 messages; /action and /reward hold one per step. /ego/state's accelerations are the IMU's at that
-instant (`Vehicle.acceleration`) and its jerks their finite differences over the control step: raw signals to
-plot. The episode's comfort metrics in /episode (`jerk_p95_m_s3`, ... as in the summary schema,
-docs/summary.md) are `mjdrive.comfort`'s, from the samples the task's own metrics use (the chassis' planar
+/tf, /ego/state, /physics and /scene/road_users also carry the state right after reset (step 0), so they hold steps
++ 1 messages; /action and /reward hold one per step (with `decisions`, /action holds the decision's index and name,
+and the last control period's commands). /operative: the decision applied, the MPC's mode and solver status, the
+commands, the planned acceleration, speed reference, stop point, lane offset and the LQR's errors. /ego/state's
+accelerations are the IMU's at that instant (`Vehicle.acceleration`) and its jerks their finite differences over the
+control step: raw signals to plot. The episode's comfort metrics in /episode (`jerk_p95_m_s3`, ... as in the summary
+schema, docs/summary.md) are `mjdrive.comfort`'s, from the samples the task's own metrics use (the chassis' planar
 velocity and yaw, `DrivingTask.comfort_sample`, every control step), so they equal those of `task.info`.
 /ego/state's `scenario` is the urban tasks' active scenario (null on other tasks); urban road users carry a
 label with their intentions (`mjdrive.traffic.intentions`), coloured by the one in the active scenario. MCAP
@@ -251,6 +256,38 @@ class _SensorChannels:
         self.range = ch.LaserScanChannel("/sensors/range", context=context)
 
 
+_NUMBER_OR_NULL = ["number", "null"]
+_OPERATIVE = {"title": "mjdrive.OperativeStep", "type": "object", "properties": {
+    "t": {"type": "number"}, "decision": {"type": "string"}, "mode": {"type": "string"},
+    "solver": {"type": "string"}, "throttle": {"type": "number"}, "steer": {"type": "number"},
+    "brake": {"type": "number"}, "accel_command": {"type": "number"}, "v_ref": {"type": "number"},
+    "stop": {"type": _NUMBER_OR_NULL}, "offset": {"type": "number"}, "target_offset": {"type": "number"},
+    "lateral_error": {"type": "number"}, "heading_error": {"type": "number"}, "leaders": {"type": "integer"},
+    "solve_ms": {"type": "number"}, "step_ms": {"type": "number"}}}
+_PLAN = {"title": "mjdrive.OperativePlan", "type": "object", "properties": {
+    "t": {"type": "array", "items": {"type": "number"}}, "s": {"type": "array", "items": {"type": "number"}},
+    "v": {"type": "array", "items": {"type": "number"}}, "a": {"type": "array", "items": {"type": "number"}},
+    "stop": {"type": _NUMBER_OR_NULL}, "mode": {"type": "string"}}}
+PLAN_RGBA = (0.2, 0.9, 0.4, 0.9)  # the lateral path the operative level tracks, in the 3D scene
+STOP_RGBA = (0.95, 0.2, 0.2, 1.0)  # the MPC's stop point
+
+
+class _OperativeChannels:
+    """Channels of the urban tasks' operative level (decision action set), made on first use: every control
+    period's commands and state, the MPC's plan and the path ahead in the 3D scene at every env step."""
+
+    def __init__(self, context: foxglove.Context):
+        def json_channel(topic: str, schema: dict):
+            channel = foxglove.Channel(topic, schema=schema, message_encoding="json", context=context)
+            self._keep.append(channel)
+            return channel.base
+
+        self._keep: list[foxglove.Channel] = []
+        self.step = json_channel("/operative", _OPERATIVE)
+        self.plan = json_channel("/operative/plan", _PLAN)
+        self.scene = foxglove.channels.SceneUpdateChannel("/scene/plan", context=context)
+
+
 def _ns(seconds: float) -> int:
     return int(round(seconds * 1e9))
 
@@ -293,6 +330,7 @@ class EpisodeRecorder:
         self._write_options = MCAPWriteOptions(compression=compression, chunk_size=self.options.chunk_size,
                                                profile="", compression_threads=0)
         self._sensor_channels: _SensorChannels | None = None
+        self._operative_channels: _OperativeChannels | None = None
         self._comfort = ComfortMeter()  # the episode's comfort samples, as the task's (`task.comfort_sample`)
         self._control_dt: float | None = None  # [s] the task's control period (`task.control_dt`)
         self.server = None  # Foxglove WebSocket server streaming this recorder's channels (options.live_port)
@@ -425,8 +463,16 @@ class EpisodeRecorder:
         reward = float(reward)
         self._return += reward
         ch = self._channels
-        a0, a1, a2 = float(action[0]), float(action[1]), float(action[2])
-        ch.action.log(json.dumps({"throttle": a0, "steer": a1, "brake": a2}).encode(), action_ns)
+        decisions = getattr(task, "decisions", None)
+        if decisions is None:
+            a0, a1, a2 = float(action[0]), float(action[1]), float(action[2])
+            ch.action.log(json.dumps({"throttle": a0, "steer": a1, "brake": a2}).encode(), action_ns)
+        else:  # the decision, for replay, and the last control period's commands
+            last = task.ticks[-1] if task.ticks else {"throttle": 0.0, "steer": 0.0, "brake": 0.0}
+            a0, a1, a2 = float(last["throttle"]), float(last["steer"]), float(last["brake"])
+            ch.action.log(json.dumps({"decision": int(action), "name": decisions[int(action)], "throttle": a0,
+                                      "steer": a1, "brake": a2}).encode(), action_ns)
+            self._log_operative(task, ns)
         terms = {k: float(v) for k, v in task.reward_terms.items()}
         ch.reward.log(json.dumps({"reward": reward, "return": self._return, "terms": terms}).encode(), ns)
         if self._scene_due.is_set():  # a live client subscribed to the scene since the last step
@@ -504,6 +550,28 @@ class EpisodeRecorder:
                 c["P"] = [f, 0.0, w / 2, 0.0, 0.0, f, h / 2, 0.0, 0.0, 0.0, 1.0, 0.0]
             self._model_cache = (model, c)
         return self._model_cache[1]
+
+    def _log_operative(self, task, ns: int) -> None:
+        """The operative level's control periods of this env step (their comfort samples join the episode's), its
+        last MPC plan and the path it tracks ahead (3D)."""
+        if self._operative_channels is None:
+            self._operative_channels = _OperativeChannels(self._context)
+        ch = self._operative_channels
+        for tick in task.ticks:
+            comfort = tick.get("comfort")
+            if comfort is not None and not task.info.get("physics_error"):
+                self._comfort.append(*comfort)
+            record = {key: value for key, value in tick.items() if key != "comfort"}
+            ch.step.log(json.dumps(record).encode(), self._t0 + _ns(tick["t"]))
+        plan = task.operative.status.plan
+        if plan is None:
+            return
+        stop = task.operative.status.stop
+        ch.plan.log(json.dumps({"t": task.operative.mpc.times.tolist(), "s": plan.s.tolist(), "v": plan.v.tolist(),
+                                "a": plan.a.tolist(), "stop": stop, "mode": plan.mode}).encode(), ns)
+        path, stop_line = task.operative_path()
+        ch.scene.log(fm.SceneUpdate(entities=[scene.plan_entity(path, stop_line, PLAN_RGBA, STOP_RGBA,
+                                                                _timestamp(ns))]), log_time=ns)
 
     def _log_sensors(self, sensors: dict[str, np.ndarray], ns: int) -> None:
         if self._sensor_channels is None:

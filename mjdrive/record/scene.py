@@ -15,6 +15,7 @@ from mjdrive.traffic import intentions
 WORLD, EGO = "world", "ego"  # frame ids
 ROAD_Z, MARKING_Z, ROUTE_Z = 0.01, 0.02, 0.05  # [m] drawing heights (above MuJoCo's road meshes)
 SCENARIO_Z, LABEL_Z = 0.08, 1.0  # [m] scenario segments; labels above a road user's roof (+ its height)
+PLAN_Z = 0.12  # [m] the operative level's path ahead
 SCENARIO_WIDTH, SCENARIO_STEP = 1.2, 1.0  # [m] scenario segments' line width and point spacing
 MARKING_WIDTH = 0.15  # [m]
 DASH_ON, DASH_OFF = 3.0, 6.0  # [m] broken-line pattern, as in world.py
@@ -161,6 +162,17 @@ def route_entities(task, stamp: fm.Timestamp | None = None) -> list[fm.SceneEnti
                                       size=size, color=color(WAYPOINT)) for x, y in tracker.points]
         entities.append(fm.SceneEntity(timestamp=stamp, frame_id=WORLD, id="route/waypoints", spheres=spheres))
     return entities
+
+
+def plan_entity(path: np.ndarray, stop_line: np.ndarray | None, rgba, stop_rgba,
+                stamp: fm.Timestamp | None = None) -> fm.SceneEntity:
+    """A planned path (N, 2) [m] as a line strip, and a stop line (2, 2) [m] across it where there is one."""
+    lines = [fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, thickness=0.25,
+                              points=_points(np.asarray(path, float), PLAN_Z), color=color(rgba))]
+    if stop_line is not None:
+        lines.append(fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, thickness=0.4,
+                                      points=_points(np.asarray(stop_line, float), PLAN_Z), color=color(stop_rgba)))
+    return fm.SceneEntity(timestamp=stamp, frame_id=WORLD, id="operative/plan", lines=lines)
 
 
 def scenario_entity(route_lane, tactical, stamp: fm.Timestamp | None = None) -> fm.SceneEntity:

@@ -37,9 +37,11 @@ class RouteFrame:
         n = len(self.x0)
         return max(self.segment + self.WINDOW[0], 0), min(self.segment + self.WINDOW[1], n)
 
-    def __call__(self, points: np.ndarray, full: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """(s, d) arrays (K,) for points (K,2); the first point moves the search window."""
-        lo, hi = (0, len(self.x0)) if full else self.window()
+    def __call__(self, points: np.ndarray, full: bool = False,
+                 window: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(s, d) arrays (K,) for points (K,2); the first point moves the search window (`window`: search these
+        segments lo..hi instead)."""
+        lo, hi = (0, len(self.x0)) if full else window or self.window()
         if KERNELS:  # the same numbers in one compiled pass
             s, d, self.segment = _project(np.ascontiguousarray(points, dtype=np.float64), self.x0, self.y0, self.tx,
                                           self.ty, self.length, self.s0, lo, hi)
@@ -54,6 +56,18 @@ class RouteFrame:
         rows = np.arange(len(points))
         self.segment = lo + int(j[0])
         return self.s0[lo + j] + clamped[rows, j], side[rows, j]
+
+    def project(self, points: np.ndarray, s_min: float, s_max: float) -> tuple[np.ndarray, np.ndarray]:
+        """(s, d) arrays (K,) of points (K, 2) on their nearest segment between s_min and s_max [m] along the route,
+        leaving the search window where it is (other road users near the ego)."""
+        lo = max(int(np.searchsorted(self.s0, s_min, side="right")) - 1, 0)
+        hi = max(min(int(np.searchsorted(self.s0, s_max, side="right")), len(self.s0)), lo + 1)
+        if not len(points):
+            return np.zeros(0), np.zeros(0)
+        segment = self.segment
+        s, d = self(np.ascontiguousarray(points, dtype=np.float64), window=(lo, hi))
+        self.segment = segment
+        return s, d
 
     def point(self, x: float, y: float) -> tuple[float, float]:
         """(s, d) [m] of one point (x, y) [m], which moves the search window: `self(np.array([[x, y]]))`'s numbers

@@ -205,7 +205,13 @@ class DrivingTask(control.Task):
 
     Extra sensors (`sensors`, from the config's `sensors` keyword): a task adds `sensor_spec` to its
     observation_spec and `sensor_observation` to its observation.
+
+    Control underneath an env step (the urban tasks' decisions): a task with `control_ticks` > 1 splits each
+    env step's physics into that many control periods; the DrivingEnvironment calls `control_tick(physics, k)`
+    before the k-th and samples the comfort meter after each, so the comfort metrics keep the control rate.
     """
+
+    control_ticks: int = 1  # control periods per env step
 
     def __init__(self, model: mujoco.MjModel, road_map: RoadMap, vehicle: str, random=None,
                  sensors: ExtraSensors | None = None):
@@ -235,6 +241,10 @@ class DrivingTask(control.Task):
     # --- actions ------------------------------------------------------------------------------------
     def action_spec(self, physics: Physics) -> specs.BoundedArray:
         return ACTION_SPEC
+
+    def control_tick(self, physics: Physics, k: int) -> None:
+        """Before the k-th control period of an env step's physics (k = 0 .. control_ticks - 1): a task that
+        controls the car underneath its env step sets the commands here."""
 
     def before_step(self, action, physics: Physics) -> None:
         action = np.asarray(action, dtype=np.float64)
@@ -356,9 +366,10 @@ class DrivingEnvironment(control.Environment):
     comfort meter after every reset and step, and puts the comfort metrics into `info` at the episode's
     last step (whatever ends it: the task, the time limit or a physics error).
 
-    A control step is `before_physics(action)`, `physics.advance(n_sub_steps)`, `after_physics()`: `step`
-    runs the three, the batched env (`mjdrive.envs.batched`) runs the halves around one physics call for
-    all its copies, so both step a task the same way."""
+    A control step is `before_physics(action)`, then for each of the task's `control_ticks` control periods
+    `before_tick(k)` and `physics.advance(tick_steps)`, then `after_physics()`: `step` runs them, the batched env
+    (`mjdrive.envs.batched`) runs the halves around one physics call per control period for all its copies, so
+    both step a task the same way."""
 
     def __init__(self, physics: Physics, task: DrivingTask, **kwargs):
         kwargs.setdefault("legacy_step", False)
@@ -368,7 +379,12 @@ class DrivingEnvironment(control.Environment):
         self._last_observation = None
         self._warnings: tuple[mujoco.MjData, np.ndarray] | None = None  # (data, its warning counts: a view)
         self._warnings_before = self.warning_counts().tobytes()  # the counts before this step's physics
-        task.control_dt = self.control_timestep()  # [s] the comfort samples' period
+        ticks = task.control_ticks
+        if ticks < 1 or self._n_sub_steps % ticks:
+            raise ValueError(f"{self._n_sub_steps} physics steps per env step do not split into {ticks} control "
+                             "periods")
+        self.tick_steps = self._n_sub_steps // ticks  # physics steps per control period
+        task.control_dt = self.control_timestep() / ticks  # [s] the comfort samples' period
 
     @property
     def info(self) -> dict[str, Any]:
@@ -411,8 +427,17 @@ class DrivingEnvironment(control.Environment):
         if self._reset_next_step:
             return self.reset()
         self.before_physics(action)
-        self.physics.advance(self._n_sub_steps)
+        for k in range(self._task.control_ticks):
+            self.before_tick(k)
+            self._physics.advance(self.tick_steps)
         return self.after_physics()
+
+    def before_tick(self, k: int) -> None:
+        """Before the k-th control period of a step's physics: the comfort sample of the period before (the last
+        one's is taken after the step), then the task's `control_tick`."""
+        if k:
+            self._task.sample_comfort(self._physics.raw_data)
+        self._task.control_tick(self._physics, k)
 
     def before_physics(self, action) -> None:
         """First half of a control step: the task applies `action`; the physics' warning counts are kept to

@@ -35,8 +35,11 @@ from dm_env import specs
 
 from mjdrive import world
 from mjdrive.compiled import KERNELS
-from mjdrive.config import ConfigError, param
+from mjdrive.config import ConfigError, discrete_index, param
+from mjdrive.control.operative import OperativeConfig, OperativeLevel
+from mjdrive.control.speed_profile import route_speed_profile
 from mjdrive.roads import Lane
+from mjdrive.roads.conflicts import MERGE
 from mjdrive.roads.geometry import wrap_angle
 from mjdrive.roads.ports import ComposedMap
 from mjdrive.roads.route_frame import RouteFrame
@@ -51,6 +54,7 @@ from mjdrive.tasks.base import (
     configured_task,
     environment_config,
 )
+from mjdrive.tasks.decisions import ACTIONS, RouteTraffic
 from mjdrive.traffic import KIND_NAMES, EgoState, Traffic, TrafficConfig, counts_to_kinds, slots
 from mjdrive.traffic.intentions import SCENARIOS as INTENTION_SCENARIOS
 from mjdrive.traffic.urban import URBAN_CONFIG, default_counts, urban_traffic
@@ -89,10 +93,25 @@ class UrbanConfig(DrivingConfig):
                                               ge=0, le=100, keys=tuple(k for k in KIND_NAMES if k != "pedestrian"))
     traffic_config: TrafficConfig = param(URBAN_CONFIG, "traffic behaviour constants (a dict of its keywords)")
     image_size: int = param(84, "side of the square camera image", "px", ge=16, le=512)
+    decisions: bool = param(False, "study 002's decision actions (drive / stop, keep / left / right) instead of "
+                            "throttle, steer, brake: one env step per decision period, the operative level "
+                            "(LQR + MPC) driving underneath")
+    decision_period: float = param(0.5, "env step with `decisions` (a multiple of the 0.1 s control period)", "s",
+                                   ge=0.1, le=5.0)
+    steering_latency: float = param(0.0, "with `decisions`: the car applies each steering command this much "
+                                    "later (a multiple of the control period; the LQR compensates it)", "s",
+                                    ge=0.0, le=1.0)
+    operative: OperativeConfig = param(OperativeConfig(), "with `decisions`: the operative level's parameters "
+                                       "(a dict of its keywords)")
 
     def check(self) -> None:
         if self.road_users is not None and sum(self.road_users.values()) > 100:
             raise ConfigError(f"road_users={self.road_users}: at most 100 in all")
+        for name in ("decision_period", "steering_latency"):
+            periods = getattr(self, name) / CONTROL_TIMESTEP
+            if abs(periods - round(periods)) > 1e-6:
+                raise ConfigError(f"{name}={getattr(self, name):g} s must be a multiple of the control period "
+                                  f"{CONTROL_TIMESTEP:g} s")
 
 
 class UrbanTask(DrivingTask):
@@ -103,6 +122,7 @@ class UrbanTask(DrivingTask):
         self.config = config
         self.observation = config.observation
         self.urban = route
+        self.name = scenario  # the task: a scenario or "concatenated"
         self.scenario = scenario
         self.route = list(route.route)  # lane ids (scripted drivers read them)
         self.traffic = urban_traffic(route.composed, counts=collections.Counter(kinds),
@@ -127,6 +147,41 @@ class UrbanTask(DrivingTask):
         self._interval_ends = np.array([s1 for _, _, s1 in intervals], dtype=float)  # [m]
         self._interval_names = [name for name, _, _ in intervals] + [FOLLOW]  # index -1: outside every interval
         self._point_code = np.array([_SCENARIO_CODE[name] for name in self._point_scenario], dtype=np.int64)
+        self.step_period = CONTROL_TIMESTEP  # [s] of one env step
+        self.decisions: tuple[str, ...] | None = None  # the decision action set's names (None: pedals)
+        if config.decisions:
+            self._set_up_decisions(config)
+
+    def _set_up_decisions(self, config: UrbanConfig) -> None:
+        """The decision action set: its names, the operative level and the ground truth it reads."""
+        self.decisions = ACTIONS[self.name]
+        self.step_period = config.decision_period
+        self.control_ticks = int(round(config.decision_period / CONTROL_TIMESTEP))
+        rm, route = self.road_map, self.route
+        limits = np.array([rm.lanes[lane].speed_limit for lane in route])
+        c = config.operative
+        profile = route_speed_profile(self.route_lane, self.route_starts, limits, c.lateral_accel, c.lateral_jerk,
+                                      c.curve_decel, c.path_deviation, c.smoothing, c.curve_footprint,
+                                      reference=0.5 * self.params.wheelbase)
+        self.operative = OperativeLevel(profile, self.params, CONTROL_TIMESTEP, c,
+                                        extra_delay=config.steering_latency)
+        table = self.traffic.approaches
+        lines, scenarios = [], []
+        for k, lane in enumerate(route):  # the give-way lines of the conflict zones on the route
+            rows = np.flatnonzero((table.lane == lane) & (table.yields | table.tie))
+            for row in rows:
+                s_line = float(self.route_starts[k] + table.stop[row])
+                lines.append(s_line)
+                scenarios.append(self.urban.tactical.scenario_at(s_line))
+        order = np.argsort(lines, kind="stable")
+        give_way = (np.asarray(lines, float)[order], np.asarray(scenarios, dtype=object)[order])
+        rc = self.urban.route_conflicts
+        merges = np.asarray(rc.s_point, dtype=float)[np.asarray(rc.kind) == MERGE] if len(rc) else np.zeros(0)
+        self.route_traffic = RouteTraffic(rm, tuple(route), self.route_starts, RouteFrame(self.route_lane),
+                                          self.route_lane.heading, self.urban.tactical.scenario_at, give_way, merges,
+                                          self.params.length, self.params.width, CONTROL_TIMESTEP)
+        self._steer_queue: list[float] = []  # steering commands still to act (steering_latency)
+        self.ticks: list[dict] = []  # this env step's control periods, for the logs
 
     # --- episode ----------------------------------------------------------------------------------------
     def initialize_episode(self, physics: Physics) -> None:
@@ -149,6 +204,13 @@ class UrbanTask(DrivingTask):
         self._step_reward = 0.0
         self._ended = False
         self.reward_terms = {}
+        if self.decisions is not None:
+            self.operative.reset()
+            self.route_traffic.reset(self.traffic.n)
+            self._steer_queue = [0.0] * int(round(self.config.steering_latency / CONTROL_TIMESTEP))
+            self.decision = self.decisions[0]
+            self.ticks = []
+            self.info.update(self._decision_info())
 
     def substep_period(self) -> float:
         """[s] between substeps: the traffic's pose period (mocap poses written and contacts sampled)."""
@@ -163,15 +225,91 @@ class UrbanTask(DrivingTask):
         self.collision_sensor.sample(data)
         self.traffic.advance(dt, self._ego_fn, data)
 
+    # --- decisions ----------------------------------------------------------------------------------------
+    def action_spec(self, physics: Physics) -> specs.BoundedArray:
+        if self.decisions is None:
+            return super().action_spec(physics)
+        return specs.DiscreteArray(len(self.decisions), name=",".join(self.decisions))
+
+    def before_step(self, action, physics: Physics) -> None:
+        if self.decisions is None:
+            super().before_step(action, physics)
+            return
+        index = discrete_index(action, self.decisions, f"urban/{self.name} decision")
+        self.decision = self.decisions[index]
+        self.last_action = index
+        self.ticks = []
+
+    def control_tick(self, physics: Physics, k: int) -> None:
+        """One control period of the operative level under the decision: ground truth in, pedals and steering out
+        (the steering through the car's latency queue)."""
+        if self.decisions is None:
+            return
+        if k == 0:
+            self._step_start = self._position  # [m] for the step's distance
+        self._update_ego(physics)
+        level, data = self.operative, physics.raw_data
+        situation = self.route_traffic.situation(self.route_s, (*self._position, self.yaw), self.speed, self.decision,
+                                                 level.lanes(), self.traffic, self.ego_state(physics),
+                                                 self.params.wheelbase)
+        throttle, steer, brake = level(situation)
+        queue = self._steer_queue
+        if queue:
+            queue.append(steer)
+            steer = queue.pop(0)
+        self.vehicle.apply(data, throttle, steer, brake)
+        self._chassis = None  # the physics moves next
+        status = level.status
+        tick = {"t": float(data.time), "decision": status.decision, "mode": status.mode, "solver": status.solver,
+                "throttle": throttle, "steer": steer, "brake": brake, "accel_command": status.accel,
+                "v_ref": status.v_ref, "stop": status.stop, "offset": status.offset,
+                "target_offset": status.target_offset, "lateral_error": status.lateral_error,
+                "heading_error": status.heading_error, "leaders": len(situation.leaders), "solve_ms": status.solve_ms,
+                "step_ms": status.step_ms}
+        if k:
+            vx, vy, yaw = self._planar_velocity(data)
+            tick["comfort"] = (vx, vy, yaw)
+        self.ticks.append(tick)
+
+    def operative_path(self, length: float = 60.0) -> tuple[np.ndarray, np.ndarray | None]:
+        """The path the operative level tracks over the next `length` [m] of the route (its lane offset and the
+        smoothed curves included) as points (M, 2) [m], and its stop line across the lane (2, 2) [m] (None: no
+        stop): for the logs' 3D scene."""
+        level = self.operative
+        s = self.route_s + np.arange(0.0, length, 1.0)
+        offset = level.offset_target if level.manoeuvre is None else np.array(
+            [level.manoeuvre(level.time + d / max(self.speed, 1.0))[0] for d in s - self.route_s])
+        smooth = np.interp(s, level.profile.s, level.profile.offset)
+        path = np.asarray(self.route_lane.position(s, smooth + offset)).reshape(-1, 2)
+        stop = level.status.stop
+        if stop is None:
+            return path, None
+        s_stop = self.route_s + 0.5 * self.params.length + stop
+        half = 0.5 * self.route_lane.width
+        line = np.asarray(self.route_lane.position(np.array([s_stop, s_stop]),
+                                                   np.array([-half, half]) + level.offset_target))
+        return path, line.reshape(2, 2)
+
+    def _decision_info(self) -> dict:
+        """`info`'s keys of the decision action set: the decision asked, the one the level applied, its mode."""
+        status = self.operative.status
+        return {"decision": self.decision, "decision_applied": status.decision, "manoeuvre": status.mode,
+                "lane_offset_target": status.target_offset}
+
     def ego_state(self, physics: Physics) -> EgoState:
         """The ego for traffic: pose, speed, and its place on the route's lanes (when on them)."""
         x, y, yaw = self.vehicle.pose(physics.raw_data)
         speed = self.vehicle.speed(physics.raw_data)
         path, s_lane = None, 0.0
-        if abs(self.lane_offset) <= 0.5 * self.route_lane.width:
+        half = 0.5 * self.route_lane.width
+        if abs(self.lane_offset) <= half:
             k = int(np.searchsorted(self.route_starts, self.route_s, side="right") - 1)
             path = self._route_lanes[k:].copy()
             s_lane = float(self.route_s - self.route_starts[k])
+        elif self.decisions is not None and abs(self.lane_offset) <= 3 * half:  # in a neighbour lane
+            neighbour = self.route_traffic.neighbour_path(self.route_s, 1 if self.lane_offset > 0 else -1)
+            if neighbour is not None:
+                path, s_lane = neighbour
         return EgoState(x, y, yaw, speed, self.params.length, self.params.width, path, s_lane)
 
     def _update_ego(self, physics: Physics) -> None:
@@ -205,7 +343,7 @@ class UrbanTask(DrivingTask):
                          self.traffic.intentions()[self.traffic.present])
 
     def after_step(self, physics: Physics) -> None:
-        (x0, y0) = self._position
+        (x0, y0) = self._position if self.decisions is None else self._step_start
         self._update_ego(physics)
         info = self.info
         collision = self.collision_sensor.collided(physics.raw_data)
@@ -216,7 +354,7 @@ class UrbanTask(DrivingTask):
         info["success"] = arrived and not info["collision"]
         info["scenario"] = self.active_scenario()
         info["steps"] += 1
-        info["elapsed_time"] = info["steps"] * CONTROL_TIMESTEP
+        info["elapsed_time"] = info["steps"] * self.step_period
         x, y = self._position
         info["distance"] += float(np.hypot(x - x0, y - y0))
         info["average_speed"] = info["distance"] / info["elapsed_time"]
@@ -226,6 +364,8 @@ class UrbanTask(DrivingTask):
         self._step_reward = speed + arrival + crash  # their sum, in this order
         info["episode_reward"] += self._step_reward
         self._ended = collision or arrived or off_route
+        if self.decisions is not None:
+            info.update(self._decision_info())
 
     def get_reward(self, physics: Physics) -> float:
         return self._step_reward
@@ -328,7 +468,11 @@ def _route(name: str) -> UrbanRoute:
 
 def _make(name: str, config: UrbanConfig, environment_kwargs) -> DrivingEnvironment:
     where = f"urban/{name}"
-    env_kwargs = environment_config(environment_kwargs, config.physics_dt, CONTROL_TIMESTEP, where)
+    period = config.decision_period if config.decisions else CONTROL_TIMESTEP  # [s] of one env step
+    env_kwargs = environment_config(environment_kwargs, config.physics_dt, period, where)
+    if config.decisions and abs(env_kwargs["control_timestep"] - period) > 1e-9:
+        raise ConfigError(f"{where}: with decisions the env step is the decision period ({period:g} s); set "
+                          "decision_period instead of control_timestep")
     route = _route(name)
     composed: ComposedMap = route.composed
     kinds = counts_to_kinds(default_counts(composed) if config.road_users is None else config.road_users)

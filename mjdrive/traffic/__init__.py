@@ -14,7 +14,7 @@ One module per behaviour over the shared state of `Traffic` (model.py):
 
 from mjdrive.traffic.geometry import overlapping_pairs
 from mjdrive.traffic.lanes import TrafficMap
-from mjdrive.traffic.model import Traffic
+from mjdrive.traffic.model import GiveWay, Traffic
 from mjdrive.traffic.params import (
     KIND_INDEX,
     KIND_NAMES,
@@ -27,6 +27,6 @@ from mjdrive.traffic.params import (
 )
 
 __all__ = [
-    "KIND_INDEX", "KIND_NAMES", "ROAD_USER_TYPES", "EgoState", "RoadUserType", "Traffic", "TrafficConfig",
+    "KIND_INDEX", "KIND_NAMES", "ROAD_USER_TYPES", "EgoState", "GiveWay", "RoadUserType", "Traffic", "TrafficConfig",
     "TrafficMap", "counts_to_kinds", "overlapping_pairs", "slots",
 ]

@@ -38,6 +38,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import mujoco
 import numpy as np
@@ -46,7 +47,7 @@ from mjdrive.compiled import announce_compilation
 from mjdrive.roads import RoadMap
 from mjdrive.roads.conflicts import ConflictZones
 from mjdrive.traffic import kernels, state_kernels
-from mjdrive.traffic.conflicts import ApproachTable
+from mjdrive.traffic.conflicts import ApproachTable, conflict_columns
 from mjdrive.traffic.following import accelerations, follower_table
 from mjdrive.traffic.geometry import smoothstep, yaw_quat
 from mjdrive.traffic.intentions import (
@@ -76,6 +77,14 @@ from mjdrive.traffic.spawning import SpawnPoints, activate, spawn
 
 _NO_PATH = np.zeros(0, dtype=np.int64)
 WAITING_SPEED = 1.0  # [m/s] a vehicle slower than this is waiting (urban rules: its patience runs down)
+
+class GiveWay(NamedTuple):
+    """What the urban rules ask of the ego (`Traffic.give_way`)."""
+
+    stop: float  # [m] front bumper to the give-way line where it must wait now (inf: it may go)
+    leader_gap: float  # [m] front bumper to the rear of the vehicle it merges behind (inf: none)
+    leader_speed: float  # [m/s] that vehicle's speed
+
 
 @dataclass
 class _Plan:
@@ -685,6 +694,31 @@ class Traffic:
         return self._current_speed[:, None] * np.column_stack([np.cos(self._current_yaw),
                                                               np.sin(self._current_yaw)])
 
+    def give_way(self, ego: EgoState) -> GiveWay:
+        """What the urban rules (`conflicts.conflict_columns`, the rules every vehicle obeys) ask of the ego now:
+        the give-way line it must wait at, and the vehicle it must merge behind. Needs ego.path and urban rules
+        (a map with conflict zones); without either, nothing is asked."""
+        if ego.path is None or self.approaches is None or not len(self.approaches):
+            return GiveWay(np.inf, np.inf, 0.0)
+        self.ego = ego
+        self._obstacle_cache = None
+        ctx = self._context()
+        f = self._ego_follower(ego, ctx, self.config.accept_gap, np.array([ego.length]), np.array([3.0]),
+                               np.array([1.5]), 8.0, 2.0)
+        gap, lead, _, _ = conflict_columns(self, ctx, f)
+        n_r = len(self.approaches)
+        k = int(np.argmin(gap[0, n_r:]))
+        return GiveWay(float(gap[0, :n_r].min()), float(gap[0, n_r + k]), float(lead[0, n_r + k]))
+
+    def _ego_follower(self, ego: EgoState, ctx: dict, accept_gap: float, length: np.ndarray, decel: np.ndarray,
+                      headway: np.ndarray, desired_speed: float, accel: float) -> dict:
+        """The ego as the one follower of `following.accelerations` (the last row of `ctx`)."""
+        return {"rows": np.array([self.nv]), "path": ctx["path"][-1:], "offset": ctx["offset"][-1:],
+                "s": np.array([ego.s]), "v": np.array([max(ego.speed, 0.0)]), "v0": np.array([desired_speed]),
+                "length": length, "width": np.array([ego.width]), "a": np.array([accel]), "b": decel,
+                "T": headway, "xy": np.array([[ego.x, ego.y]]), "yaw": np.array([ego.yaw]),
+                "accept_gap": accept_gap, "courteous": np.zeros(1, dtype=bool)}
+
     def advise(self, ego: EgoState, accel: float = 2.0, decel: float = 3.0, headway: float = 1.5,
                desired_speed: float = 8.0, accept_gap: float | None = None) -> float:
         """The acceleration [m/s^2] traffic's own rules give the ego (a privileged autopilot): IDM behind
@@ -694,11 +728,6 @@ class Traffic:
         self.ego = ego
         self._obstacle_cache = None
         ctx = self._context()
-        f = {"rows": np.array([self.nv]), "path": ctx["path"][-1:], "offset": ctx["offset"][-1:],
-             "s": np.array([ego.s]), "v": np.array([max(ego.speed, 0.0)]), "v0": np.array([desired_speed]),
-             "length": np.array([ego.length]), "width": np.array([ego.width]), "a": np.array([accel]),
-             "b": np.array([decel]), "T": np.array([headway]), "xy": np.array([[ego.x, ego.y]]),
-             "yaw": np.array([ego.yaw]),
-             "accept_gap": self.config.accept_gap if accept_gap is None else accept_gap,
-             "courteous": np.zeros(1, dtype=bool)}
+        f = self._ego_follower(ego, ctx, self.config.accept_gap if accept_gap is None else accept_gap,
+                               np.array([ego.length]), np.array([decel]), np.array([headway]), desired_speed, accel)
         return float(accelerations(self, f, ctx)[0])

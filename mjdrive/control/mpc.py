@@ -1,0 +1,342 @@
+"""Longitudinal manoeuvres by model predictive control: one quadratic programme solved by OSQP each control step.
+
+State x_k = (s_k, v_k, a_k): position [m] along the path (0 = the front bumper now), speed [m/s], acceleration
+[m/s^2]; input j_k: jerk [m/s^3], held over each of the N steps of `step` seconds (exact integration):
+
+    s+ = s + v h + a h^2 / 2 + j h^3 / 6,   v+ = v + a h + j h^2 / 2,   a+ = a + j h
+
+Cost: sum over the horizon of w_v (v_k - v_ref_k)^2 + w_a a_k^2 + w_j j_k^2, plus the slacks' penalties.
+Hard bounds (the comfort envelope): a_k in [accel_min, accel_max], j_k in [jerk_min, jerk_max]. Soft constraints,
+each relaxed by a slack that costs far more than anything else (so the problem is always feasible):
+
+    follow:  s_k + T v_k <= leader_k - d0      (the time gap T and standstill gap d0 to the leader's rear, with
+                                                the leader's predicted motion: constant acceleration, never
+                                                reversing)
+    stop:    s_k <= stop                       (come to rest before a point: a give-way line, a lane's end)
+    0 <= v_k <= v_ref_k                        (the reference is the most the route allows; and a triple
+                                                integrator must not plan reversing)
+
+The three modes of study 002's operative level (§4.3) are which of these bind: cruise (track v_ref), follow
+(the leader) and stop (the point). A stop also lowers v_ref to the comfortable stopping profile
+sqrt(2 b (stop - s)), so the car brakes early and gently instead of late and hard.
+
+OSQP: the matrices are built once (fixed sparsity); a solve updates only the vectors (q, l, u) and starts from the
+previous solution (OSQP's warm start); a solution is moved onto the hard bounds it exceeds within OSQP's tolerance
+and its states integrated exactly (`plan_within_bounds`). For the same inputs a solver gives the same bits: the
+settings leave nothing to time (rho adapts every `adaptive_rho_interval` iterations, no time limit), and `reset`
+sets the solver up anew so every episode starts from the same state. Fallbacks: when the comfort envelope cannot
+keep a soft constraint (its slack exceeds `emergency_slack`, e.g. a vehicle cutting in), the same programme is
+solved again with the emergency bounds; if OSQP does not report a solution, the plan is a comfortable braking to
+rest (`MPCPlan.fallback`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import osqp
+import scipy.sparse as sparse
+
+from mjdrive.compiled import jit
+from mjdrive.config import Config, ConfigError, param
+
+INFINITY = osqp.ext_builtin.OSQP_INFTY  # OSQP's infinite bound (1e30)
+MODES = ("cruise", "follow", "stop")  # the plan's mode: the soft constraint that binds first (within BINDING)
+BINDING = 0.1  # [m]
+NO_LIMIT = 1e9  # [m] a position bound that never binds
+
+
+@dataclass(frozen=True)
+class MPCConfig(Config):
+    """The longitudinal MPC's horizon, bounds, gaps and weights."""
+
+    horizon: int = param(20, "prediction steps", ge=5, le=60)
+    step: float = param(0.25, "length of one prediction step", "s", gt=0.02, le=1.0)
+    accel_min: float = param(-3.5, "comfort bound: strongest braking", "m/s^2", ge=-9.0, lt=0.0)
+    accel_max: float = param(1.8, "comfort bound: strongest acceleration", "m/s^2", gt=0.0, le=5.0)
+    jerk_max: float = param(2.5, "comfort bound on |jerk|", "m/s^3", gt=0.0, le=50.0)
+    emergency_accel_min: float = param(-8.0, "braking allowed when the comfort bounds cannot keep a gap", "m/s^2",
+                                       ge=-10.0, lt=0.0)
+    emergency_jerk_max: float = param(25.0, "|jerk| allowed in an emergency", "m/s^3", gt=0.0, le=200.0)
+    emergency_slack: float = param(0.5, "a soft constraint violated by more than this triggers the emergency "
+                                   "bounds", "m", gt=0.0, le=10.0)
+    headway: float = param(1.5, "T: time gap to the leader", "s", ge=0.0, le=5.0)
+    standstill_gap: float = param(5.0, "d0: gap to the leader at rest (bumper to bumper)", "m", ge=0.5, le=20.0)
+    stop_decel: float = param(1.5, "b: the comfortable stopping profile's deceleration", "m/s^2", gt=0.1, le=5.0)
+    speed_weight: float = param(1.0, "w_v", "1/(m/s)^2", gt=0.0)
+    accel_weight: float = param(0.5, "w_a", "1/(m/s^2)^2", ge=0.0)
+    jerk_weight: float = param(1.0, "w_j", "1/(m/s^3)^2", gt=0.0)
+    slack_weight: float = param(1e2, "quadratic cost of a slack", "1/m^2", gt=0.0)
+    slack_linear: float = param(1e2, "linear cost of a slack (an exact penalty)", "1/m", gt=0.0)
+
+    def check(self) -> None:
+        if self.emergency_accel_min > self.accel_min or self.emergency_jerk_max < self.jerk_max:
+            raise ConfigError("the emergency bounds must contain the comfort bounds: emergency_accel_min <= "
+                              "accel_min and emergency_jerk_max >= jerk_max")
+
+
+SOLVER_SETTINGS = dict(  # fixed: OSQP's result depends only on the problem sequence since `setup`
+    eps_abs=1e-3, eps_rel=1e-3, rho=1.0, check_termination=5, adaptive_rho=True, adaptive_rho_interval=25,
+    max_iter=2000, polishing=False, warm_starting=True, verbose=False, time_limit=1e10)  # 1e10 s: none
+
+
+class OSQPSolver:
+    """OSQP's C solver through its Python extension (`osqp.ext_builtin`: the object the `osqp.OSQP` wrapper holds),
+    set up once and then given only new vectors: a solve without the wrapper's per-call bookkeeping (about 30 us
+    of a 70 us solve here)."""
+
+    def __init__(self, p, q: np.ndarray, a, l: np.ndarray, u: np.ndarray, settings: dict):
+        ext = osqp.ext_builtin
+        options = ext.OSQPSettings()
+        ext.osqp_set_default_settings(options)
+        for name, value in settings.items():
+            setattr(options, name, value)
+        self._solver = ext.OSQPSolver(ext.CSC(p.astype(np.float64)), q, ext.CSC(a.astype(np.float64)), l, u,
+                                      a.shape[0], a.shape[1], options)
+
+    def solve(self, q: np.ndarray, l: np.ndarray, u: np.ndarray) -> tuple[np.ndarray | None, int]:
+        """(the solution, or None when OSQP does not report it solved; its iterations) for the new vectors."""
+        solver = self._solver
+        solver.update_data_vec(q=q, l=l, u=u)
+        solver.solve()
+        info = solver.info
+        return (solver.solution.x if info.status_val == osqp.ext_builtin.OSQP_SOLVED else None), int(info.iter)
+
+
+@dataclass(frozen=True)
+class Leader:
+    """The vehicle to follow: its rear bumper `gap` [m] ahead of the ego's front bumper, its speed along the
+    ego's path [m/s] and acceleration [m/s^2] (predicted constant, until it stands)."""
+
+    gap: float
+    speed: float
+    accel: float = 0.0
+
+    def positions(self, times: np.ndarray) -> np.ndarray:
+        """Its rear bumper [m] (ego front now = 0) at `times` [s]."""
+        v, a = max(self.speed, 0.0), self.accel
+        if a >= 0.0:
+            return self.gap + v * times + 0.5 * a * times * times
+        t_stop = v / -a
+        t = np.minimum(times, t_stop)
+        return self.gap + v * t + 0.5 * a * t * t
+
+
+@dataclass(frozen=True)
+class MPCPlan:
+    """A solution: positions, speeds, accelerations (N + 1,) and jerks (N,) at the horizon's steps."""
+
+    s: np.ndarray  # [m]
+    v: np.ndarray  # [m/s]
+    a: np.ndarray  # [m/s^2]
+    j: np.ndarray  # [m/s^3]
+    slack: float  # [m] the largest violation of a soft constraint
+    mode: str  # "cruise", "follow" or "stop": the constraint that binds first (cruise: none)
+    status: str  # "solved", "emergency" (solved with the emergency bounds) or "fallback" (OSQP failed)
+    iterations: int
+
+    def accel_at(self, t: float, step: float) -> float:
+        """The planned acceleration [m/s^2] t [s] from now (piecewise linear: constant jerk per step)."""
+        k = min(int(t / step), len(self.j) - 1)
+        return float(self.a[k] + self.j[k] * (t - k * step))
+
+    def speed_at(self, t: float, step: float) -> float:
+        k = min(int(t / step), len(self.j) - 1)
+        tau = t - k * step
+        return float(self.v[k] + self.a[k] * tau + 0.5 * self.j[k] * tau * tau)
+
+
+class LongitudinalMPC:
+    """The QP of the module docstring, set up once; `solve` updates its vectors."""
+
+    def __init__(self, config: MPCConfig = MPCConfig()):
+        self.config = c = config
+        n, h = c.horizon, c.step
+        self.times = h * np.arange(n + 1)  # [s]
+        self._nx = 3 * (n + 1)
+        nv = self._nx + 3 * n  # states, jerks, position slacks, speed slacks
+        self._x = lambda k, i: 3 * k + i
+        self._j = lambda k: self._nx + k
+        self._slack = lambda k: self._nx + n + k  # the position slack of step k + 1
+        self._speed_slack = lambda k: self._nx + 2 * n + k
+        rows, cols, vals = [], [], []
+        row = 0
+
+        def put(col: int, value: float) -> None:
+            rows.append(row)
+            cols.append(col)
+            vals.append(value)
+
+        for i in range(3):  # initial state
+            put(self._x(0, i), 1.0)
+            row += 1
+        transition = np.array([[1.0, h, h * h / 2], [0.0, 1.0, h], [0.0, 0.0, 1.0]])
+        gain = np.array([h**3 / 6, h * h / 2, h])
+        for k in range(n):  # dynamics: A x_k + B j_k - x_{k+1} = 0
+            for i in range(3):
+                for m in range(3):
+                    if transition[i, m]:
+                        put(self._x(k, m), transition[i, m])
+                put(self._j(k), gain[i])
+                put(self._x(k + 1, i), -1.0)
+                row += 1
+        self._n_eq = row
+        self._rows_accel = row
+        for k in range(1, n + 1):
+            put(self._x(k, 2), 1.0)
+            row += 1
+        self._rows_jerk = row
+        for k in range(n):
+            put(self._j(k), 1.0)
+            row += 1
+        self._rows_speed = row
+        for k in range(1, n + 1):  # v_k + mu_k >= 0
+            put(self._x(k, 1), 1.0)
+            put(self._speed_slack(k - 1), 1.0)
+            row += 1
+        self._rows_limit = row
+        for k in range(1, n + 1):  # v_k - mu_k <= v_max_k
+            put(self._x(k, 1), 1.0)
+            put(self._speed_slack(k - 1), -1.0)
+            row += 1
+        self._rows_stop = row
+        for k in range(1, n + 1):  # s_k - sigma_k <= stop
+            put(self._x(k, 0), 1.0)
+            put(self._slack(k - 1), -1.0)
+            row += 1
+        self._rows_follow = row
+        for k in range(1, n + 1):  # s_k + T v_k - sigma_k <= leader_k - d0
+            put(self._x(k, 0), 1.0)
+            put(self._x(k, 1), c.headway)
+            put(self._slack(k - 1), -1.0)
+            row += 1
+        self._rows_slack = row
+        for k in range(2 * n):  # slacks >= 0
+            put(self._slack(0) + k, 1.0)
+            row += 1
+        self._a = sparse.csc_matrix((vals, (rows, cols)), shape=(row, nv))
+        diag = np.zeros(nv)
+        for k in range(1, n + 1):
+            diag[self._x(k, 1)] = 2 * c.speed_weight
+            diag[self._x(k, 2)] = 2 * c.accel_weight
+        diag[self._j(0): self._j(0) + n] = 2 * c.jerk_weight
+        diag[self._slack(0): self._slack(0) + 2 * n] = 2 * c.slack_weight
+        self._p = sparse.diags(diag).tocsc()
+        self._q = np.zeros(nv)
+        self._q[self._slack(0): self._slack(0) + 2 * n] = c.slack_linear
+        self._l = np.full(row, -INFINITY)
+        self._u = np.full(row, INFINITY)
+        self._l[: self._n_eq] = self._u[: self._n_eq] = 0.0
+        self._l[self._rows_speed: self._rows_stop] = 0.0
+        self._l[self._rows_slack:] = 0.0
+        self._set_bounds(emergency=False)
+        self.solver: OSQPSolver | None = None
+        self.reset()
+
+    @property
+    def size(self) -> tuple[int, int, int]:
+        """(variables, constraints, non-zeros of the constraint matrix)."""
+        return self._a.shape[1], self._a.shape[0], self._a.nnz
+
+    def reset(self) -> None:
+        """A fresh solver (warm start and rho as after its set-up): an episode's solves depend only on its inputs."""
+        self.solver = OSQPSolver(self._p, self._q, self._a, self._l, self._u, SOLVER_SETTINGS)
+
+    def _set_bounds(self, emergency: bool) -> None:
+        c, n = self.config, self.config.horizon
+        a_min = c.emergency_accel_min if emergency else c.accel_min
+        j_max = c.emergency_jerk_max if emergency else c.jerk_max
+        self._l[self._rows_accel: self._rows_accel + n] = a_min
+        self._u[self._rows_accel: self._rows_accel + n] = c.accel_max
+        self._l[self._rows_jerk: self._rows_jerk + n] = -j_max
+        self._u[self._rows_jerk: self._rows_jerk + n] = j_max
+        self._emergency = emergency
+
+    def initial_accel(self, speed: float, accel: float) -> float:
+        """The acceleration the plan starts from: `accel` within the comfort bounds, and no braking at rest (a
+        stopped car does not decelerate: without this a plan from rest would have to reverse)."""
+        c = self.config
+        return min(max(accel, c.accel_min, -max(speed, 0.0) / c.step), c.accel_max)
+
+    def solve(self, speed: float, accel: float, v_ref: np.ndarray | float, stop: float | None = None,
+              leaders: Sequence[Leader] = ()) -> MPCPlan:
+        """The plan from the current speed [m/s] and acceleration [m/s^2] (`initial_accel` of them) tracking the
+        reference speeds v_ref [m/s] (a number, or one per step 1..N), never faster than them (a soft bound),
+        the front bumper coming to rest at most `stop` [m] ahead (None: no stop) and keeping its gap to each of
+        `leaders`."""
+        c, n = self.config, self.config.horizon
+        v0, a0 = max(speed, 0.0), self.initial_accel(speed, accel)
+        ref = np.broadcast_to(np.asarray(v_ref, dtype=float), (n,)).copy()
+        self._u[self._rows_limit: self._rows_limit + n] = ref
+        if stop is not None:  # the comfortable stopping profile v = sqrt(2 b (stop - s)), in time from here
+            start = math.sqrt(2.0 * c.stop_decel * max(stop, 0.0))
+            ref = np.minimum(ref, np.maximum(start - c.stop_decel * self.times[1:], 0.0))
+        x = self._x
+        self._q[x(1, 1): x(n, 1) + 1: 3] = -2.0 * c.speed_weight * ref
+        self._l[0:3] = self._u[0:3] = (0.0, v0, a0)
+        self._u[self._rows_stop: self._rows_stop + n] = NO_LIMIT if stop is None else stop
+        follow = self._u[self._rows_follow: self._rows_follow + n]
+        follow[:] = NO_LIMIT
+        for leader in leaders:
+            np.minimum(follow, leader.positions(self.times[1:]) - c.standstill_gap, out=follow)
+        if self._emergency:
+            self._set_bounds(emergency=False)
+        plan = self._solve()
+        if plan is not None and plan.slack > c.emergency_slack:
+            self._set_bounds(emergency=True)
+            emergency = self._solve(emergency=True)
+            plan = emergency if emergency is not None else plan
+        return plan if plan is not None else self.fallback(v0, a0)
+
+    def _solve(self, emergency: bool = False) -> MPCPlan | None:
+        solution, iterations = self.solver.solve(self._q, self._l, self._u)
+        if solution is None:
+            return None
+        n = self.config.horizon
+        states, jerks = np.empty((n + 1, 3)), np.empty(n)
+        slack, mode = plan_within_bounds(
+            self._l[0:3], solution[self._nx: self._nx + n], self.config.step, self._l[self._rows_accel],
+            self._u[self._rows_accel], self._u[self._rows_jerk], self._u[self._rows_stop: self._rows_stop + n],
+            self._u[self._rows_follow: self._rows_follow + n], self.config.headway, states, jerks)
+        return MPCPlan(states[:, 0], states[:, 1], states[:, 2], jerks, slack, MODES[mode],
+                       "emergency" if emergency else "solved", iterations)
+
+    def fallback(self, speed: float, accel: float) -> MPCPlan:
+        """Braking to rest at the comfort bound, the jerk bound permitting: the plan when OSQP gives none."""
+        c, n, h = self.config, self.config.horizon, self.config.step
+        s, v, a = np.zeros(n + 1), np.zeros(n + 1), np.zeros(n + 1)
+        j = np.zeros(n)
+        v[0], a[0] = speed, accel
+        for k in range(n):
+            target = c.accel_min if v[k] > 0.0 else 0.0
+            j[k] = min(max((target - a[k]) / h, -c.jerk_max), c.jerk_max)
+            a[k + 1] = a[k] + j[k] * h
+            v[k + 1] = max(v[k] + a[k] * h + 0.5 * j[k] * h * h, 0.0)
+            s[k + 1] = s[k] + 0.5 * (v[k] + v[k + 1]) * h
+        return MPCPlan(s, v, a, j, math.inf, "stop", "fallback", 0)
+
+
+@jit
+def plan_within_bounds(initial, jerks, h, a_min, a_max, j_max, stop, follow, headway, states, out):
+    """A solution's jerks moved onto the hard bounds they exceed within OSQP's tolerance (about 1e-3 of the
+    problem's scale) and the states (s, v, a) integrated exactly from `initial` into `states` (N + 1, 3), the jerks
+    into `out` (N,): a plan that meets its bounds and its dynamics to rounding. Returns its largest violation [m]
+    of the position constraints s_k <= stop_k and s_k + headway v_k <= follow_k, and its mode (an index of MODES:
+    the constraint within BINDING of binding at the earliest step; cruise if none)."""
+    s, v, a = initial[0], initial[1], initial[2]
+    states[0, 0], states[0, 1], states[0, 2] = s, v, a
+    slack, mode = 0.0, 0
+    for k in range(len(jerks)):
+        j = min(max(jerks[k], -j_max), j_max)
+        j = min(max(j, (a_min - a) / h), (a_max - a) / h)
+        s, v, a = s + v * h + a * h * h / 2 + j * h * h * h / 6, v + a * h + j * h * h / 2, a + j * h
+        out[k] = j
+        states[k + 1, 0], states[k + 1, 1], states[k + 1, 2] = s, v, a
+        stop_room, follow_room = stop[k] - s, follow[k] - s - headway * v
+        slack = max(slack, -stop_room, -follow_room)
+        if mode == 0 and min(stop_room, follow_room) < BINDING:
+            mode = 2 if stop_room <= follow_room else 1
+    return slack, mode

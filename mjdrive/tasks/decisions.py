@@ -1,0 +1,193 @@
+"""The decision action set of the urban tasks (study 002 §5.1.3, task keyword `decisions=True`): one env step is
+one decision period; underneath, the operative level (`mjdrive.control.operative`) drives the car at the
+control rate from the ground truth this module reads.
+
+Actions by task (`ACTIONS`): the lane-change scenario's keep / left / right, the other scenarios' drive / stop,
+and on the concatenated route all four (drive, stop, left, right: "keep" is "drive"). Inside a scenario an action
+of another scenario's set does what its default does (drive, keep); outside every scenario the level follows
+the path whatever the action ("Follow Path", §4.2).
+
+Ground truth each control period (`RouteTraffic.situation`): the car's route coordinates, the stop point of
+the active scenario (the next give-way line of the conflict zones on the route, the lines traffic stops at),
+the leaders (road users whose footprint overlaps the band of the lane the car is in, or moves to, ahead of it,
+their speed along the route and its change since the last period; at merges, the vehicle traffic's zipper
+puts ahead of the ego), the lanes a lane change can reach and the end of a neighbour lane the car is in.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from mjdrive.control.mpc import Leader
+from mjdrive.control.operative import DRIVE, LEFT, RIGHT, STOP, Situation
+from mjdrive.roads.roadmap import RoadMap
+from mjdrive.roads.route_frame import RouteFrame
+from mjdrive.traffic import EgoState, Traffic
+from mjdrive.traffic.params import PATH
+
+FOLLOW, LANE_CHANGE = "follow", "lane_change"
+ACTIONS = {"roundabout": ("drive", "stop"), "crossroad": ("drive", "stop"), "merge": ("drive", "stop"),
+           "lane_change": ("keep", "left", "right"), "concatenated": ("drive", "stop", "left", "right")}
+SCENARIO_ACTIONS = {LANE_CHANGE: {"keep": DRIVE, "drive": DRIVE, "left": LEFT, "right": RIGHT},
+                    "roundabout": {"drive": DRIVE, "stop": STOP}, "crossroad": {"drive": DRIVE, "stop": STOP},
+                    "merge": {"drive": DRIVE, "stop": STOP}}
+BAND_MARGIN = 0.4  # [m] beyond the ego's half width: a road user this close to the lane's band is in it
+LOOK_AHEAD = 100.0  # [m] leaders farther ahead along the route are left out
+LOOK_BEHIND = 15.0  # [m] road users farther behind are left out of the projection
+MAX_LEADER_ACCEL = 8.0  # [m/s^2] bound on a leader's measured acceleration (a respawned slot jumps)
+LANE_CHANGE_ROOM = 70.0  # [m] a lane change starts only where the lane it leads to goes on this far
+MERGE_RANGE = 60.0  # [m] the zipper's leader is asked for within this distance of a merge point
+
+
+def operative_decision(action: str, scenario: str) -> str:
+    """The operative level's decision for the named action in the active scenario (see the module docstring)."""
+    return SCENARIO_ACTIONS.get(scenario, {}).get(action, DRIVE)
+
+
+class RouteTraffic:
+    """Reads the ground truth of the operative level for an ego on a route: the route's lanes and give-way
+    lines (built once per task) and the road users each control period."""
+
+    def __init__(self, road_map: RoadMap, route: tuple[int, ...], route_starts: np.ndarray, frame: RouteFrame,
+                 route_heading, scenario_at, give_way_lines: tuple[np.ndarray, np.ndarray], merges: np.ndarray,
+                 length: float, width: float, dt: float):
+        """`route_heading(s)`: the route's heading [rad] at arc lengths s; `scenario_at(s)`: the tactical
+        trajectory's scenario; `give_way_lines`: (route s [m] of each give-way line the ego meets, its scenario);
+        `merges`: route s [m] of the merge points on the route; `length`, `width` [m] of the ego; dt [s] the control
+        period."""
+        self.road_map, self.route, self.frame, self.merges = road_map, route, frame, merges
+        self.starts = route_starts
+        self.heading, self.scenario_at = route_heading, scenario_at
+        self.lines, self.line_scenario = give_way_lines
+        self.half_length, self.half_width, self.dt = 0.5 * length, 0.5 * width, dt
+        lanes = road_map.lanes
+        self.ends = np.array([self.starts[k] + lanes[lane].length for k, lane in enumerate(route)])  # [m]
+        self.lane_width = np.array([lanes[lane].width for lane in route])  # [m]
+        self.left = [road_map.left_neighbour[lane] for lane in route]
+        self.right = [road_map.right_neighbour[lane] for lane in route]
+        self.reset(0)
+
+    def reset(self, n: int) -> None:
+        """Forget the road users' speeds (n slots)."""
+        self._speed = np.zeros(n)  # [m/s] along the route at the last period
+        self._generation = np.full(n, -1, dtype=np.int64)
+
+    def route_index(self, s: float) -> int:
+        """The index of the route lane at arc length s [m]."""
+        return int(min(max(np.searchsorted(self.starts, s, side="right") - 1, 0), len(self.route) - 1))
+
+    def stop_line(self, s: float, scenario: str) -> float | None:
+        """[m] from the front bumper to the next give-way line of `scenario` still ahead (a line passed by less
+        than 0.5 m counts as reached: 0); None if none."""
+        front = s + self.half_length
+        ahead = np.flatnonzero((self.lines > front - 0.5) & (self.line_scenario == scenario))
+        return max(float(self.lines[ahead[0]]) - front, 0.0) if len(ahead) else None
+
+    def neighbour_path(self, s: float, side: int) -> tuple[np.ndarray, float] | None:
+        """(lane path, s along its first lane [m]) of the neighbour lane (side +1 left, -1 right) of the route lane
+        at s, for traffic's view of an ego driving there; None where there is none."""
+        k = self.route_index(s)
+        lane = (self.left if side > 0 else self.right)[k]
+        if lane is None:
+            return None
+        path = [lane]
+        while len(path) < PATH and self.road_map.successors[path[-1]]:
+            path.append(self.road_map.successors[path[-1]][0])
+        return np.array(path, dtype=np.int64), float(s - self.starts[k])
+
+    def observe(self, s: float, traffic: Traffic, track: bool = True) -> None:
+        """Project the road users near the ego (at route position s [m]) onto the route: their route position,
+        offset, footprint extents along and across the route, speed along it and its change since the last
+        period (`track`: this is the period's observation, whose speeds the next one's changes start from; a
+        look in between, e.g. by a policy, passes False)."""
+        present = traffic.present
+        n = len(present)
+        if len(self._speed) != n:
+            self.reset(n)
+        near = np.flatnonzero(present)
+        route_s, offset = self.frame.project(traffic.positions()[near], s - LOOK_BEHIND, s + LOOK_AHEAD)
+        rel_yaw = traffic.yaws()[near] - self.heading(route_s)
+        c, sn = np.abs(np.cos(rel_yaw)), np.abs(np.sin(rel_yaw))
+        half = traffic.half_size[near]
+        along = traffic.speeds()[near] * np.cos(rel_yaw)  # [m/s]
+        generation = traffic.generation[near]
+        same = generation == self._generation[near]
+        accel = np.clip(np.where(same, (along - self._speed[near]) / self.dt, 0.0), -MAX_LEADER_ACCEL,
+                        MAX_LEADER_ACCEL)
+        if track:
+            self._speed[near], self._generation[near] = along, generation
+        half_long = c * half[:, 0] + sn * half[:, 1]  # [m] the footprint's extent along the route
+        front = s + self.half_length
+        self.seen = (route_s - half_long - front,  # [m] gap ahead: the ego's front bumper to their rear
+                     s - self.half_length - (route_s + half_long),  # [m] gap behind: their front to the ego's rear
+                     offset, sn * half[:, 0] + c * half[:, 1], along, accel)
+
+    def in_band(self, centre: float) -> np.ndarray:
+        """Which of the observed road users overlap the band of the lane centred `centre` [m] from the route."""
+        _, _, offset, half_lat, _, _ = self.seen
+        return np.abs(offset - centre) < half_lat + self.half_width + BAND_MARGIN
+
+    def leaders(self, centres: tuple[float, ...]) -> list[Leader]:
+        """The nearest observed road user ahead in the band of each lane centred `centres` [m] from the route."""
+        ahead, behind, _, _, along, accel = self.seen
+        out = []
+        for centre in dict.fromkeys(centres):  # each lane once
+            inside = self.in_band(centre) & (ahead > -self.half_length) & (behind < 0.0) & (ahead < LOOK_AHEAD)
+            if inside.any():
+                k = np.flatnonzero(inside)[np.argmin(ahead[inside])]
+                out.append(Leader(max(float(ahead[k]), 0.0), max(float(along[k]), 0.0), float(accel[k])))
+        return out
+
+    def lane_gaps(self, centre: float) -> tuple[float, float, float, float]:
+        """(gap ahead [m], its speed [m/s], gap behind [m], its speed [m/s]) of the nearest observed road users
+        before and after the ego in the band of the lane centred `centre` [m]; a road user beside the ego has gap
+        0 both ways; inf and 0 where there is none."""
+        ahead, behind, _, _, along, _ = self.seen
+        band = self.in_band(centre)
+        beside = band & (ahead <= 0.0) & (behind <= 0.0)
+        if beside.any():
+            return 0.0, float(along[beside][0]), 0.0, float(along[beside][0])
+        front, back = band & (ahead > 0.0), band & (behind > 0.0)
+        k_front = np.flatnonzero(front)[np.argmin(ahead[front])] if front.any() else None
+        k_back = np.flatnonzero(back)[np.argmin(behind[back])] if back.any() else None
+        return (float(ahead[k_front]) if k_front is not None else math.inf,
+                float(along[k_front]) if k_front is not None else 0.0,
+                float(behind[k_back]) if k_back is not None else math.inf,
+                float(along[k_back]) if k_back is not None else 0.0)
+
+    def rear_axle(self, s: float, x: float, y: float, yaw: float, wheelbase: float) -> tuple[float, float, float]:
+        """(s [m], offset [m], heading error [rad]) of the rear axle's centre on the route, for a car at (x, y) [m]
+        heading yaw [rad] whose centre is at s [m] along it."""
+        half = 0.5 * wheelbase
+        point = np.array([[x - half * math.cos(yaw), y - half * math.sin(yaw)]])
+        rear_s, rear_d = self.frame.project(point, s - wheelbase - 1.0, s + 1.0)
+        error = (yaw - float(self.heading(rear_s[0])) + math.pi) % (2 * math.pi) - math.pi
+        return float(rear_s[0]), float(rear_d[0]), error
+
+    def situation(self, s: float, pose: tuple[float, float, float], speed: float, decision: str,
+                  lanes: tuple[float, ...], traffic: Traffic, ego: EgoState, wheelbase: float) -> Situation:
+        """The ground truth of this control period for the operative level: the car's centre at s [m] along the
+        route, its pose (x, y, yaw) [m, m, rad]; `lanes`: the centre offsets [m] of the lane the car is in and,
+        during a lane change, the one it moves to, the last its target."""
+        self.observe(s, traffic)
+        rear_s, rear_lateral, heading_error = self.rear_axle(s, *pose, wheelbase)
+        scenario = self.scenario_at(s)
+        active = scenario != FOLLOW
+        k = self.route_index(s)
+        leaders = self.leaders(lanes)
+        front = s + self.half_length
+        merging = np.any((self.merges > front - self.half_length) & (self.merges < front + MERGE_RANGE))
+        if active and scenario != LANE_CHANGE and merging and ego.path is not None:  # merges: the zipper's leader
+            asked = traffic.give_way(ego)
+            if math.isfinite(asked.leader_gap):
+                leaders.append(Leader(max(asked.leader_gap, 0.0), max(asked.leader_speed, 0.0)))
+        target = lanes[-1]
+        lane_end = float(self.ends[k]) - (s + self.half_length) if target != 0.0 else None  # never past its end
+        room = self.ends[k] - s > LANE_CHANGE_ROOM
+        left = target == 0.0 and self.left[k] is not None and room
+        right = target > 0.0 or (target == 0.0 and self.right[k] is not None and room)
+        stop = self.stop_line(s, scenario) if active else None
+        return Situation(s, rear_s, rear_lateral, heading_error, speed, operative_decision(decision, scenario),
+                         active, stop, tuple(leaders), float(self.lane_width[k]), left, right, lane_end)
