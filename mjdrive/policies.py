@@ -86,29 +86,19 @@ def decision_task(env: gym.Env, policy: str):
     return task
 
 
-# Gap acceptance of the rule-based lane changes (privileged: ground truth of the lanes beside the ego).
+# The rule-based lane changes (privileged: ground truth of the lanes beside the ego).
 OVERTAKE_RANGE = 40.0  # [m] a leader nearer than this that is slower than the ego wants to drive is overtaken
 OVERTAKE_MARGIN = 2.0  # [m/s] ... by at least this much
-FRONT_GAP = 10.0  # [m] room needed ahead in the target lane, plus FRONT_HEADWAY x own speed
-FRONT_HEADWAY = 0.8  # [s]
-REAR_GAP = 8.0  # [m] room needed behind in the target lane, plus REAR_HEADWAY x its speed and the closing speed x
-REAR_HEADWAY = 0.6  # [s]
-CLOSING_TIME = 3.0  # [s]
-
-
-def _lane_free(gaps: tuple[float, float, float, float], speed: float) -> bool:
-    """Whether a lane with (gap ahead, its speed, gap behind, its speed) [m, m/s] takes the ego at `speed`."""
-    ahead, v_ahead, behind, v_behind = gaps
-    front_ok = ahead >= FRONT_GAP + FRONT_HEADWAY * speed or (ahead > FRONT_GAP and v_ahead > speed)
-    rear_ok = behind >= REAR_GAP + REAR_HEADWAY * v_behind + CLOSING_TIME * max(v_behind - speed, 0.0)
-    return front_ok and rear_ok
+OVERTAKE_ROOM = 120.0  # [m] ... where the left lane goes on at least this far (out, past, and back)
+COMMITTED = 0.3  # [m] a stop that cannot end within this past the give-way line is not made: the ego goes on
+SAME_LINE = 1.5  # [m] traffic's wait point this close to the scenario's stop point is that point
 
 
 def rules_policy(env: gym.Env) -> Policy:
     """Rule-based decisions from ground truth (privileged): at the roundabout, the crossroad and the merge, stop
     while the urban right-of-way rules (the conflict zones every vehicle obeys, `Traffic.give_way`) make the ego
     wait, else drive; on the two-lane road, overtake a slower leader when the left lane has room ahead and behind
-    (`_lane_free`), and come back once the right lane has room beside and ahead."""
+    and goes on far enough (`RouteTraffic.lane_free`), and come back once the right lane has room."""
     task = decision_task(env, "rules")
     physics = env.unwrapped.dm_env.physics
     names = task.decisions
@@ -117,8 +107,13 @@ def rules_policy(env: gym.Env) -> Policy:
     def act(observation: dict) -> int:
         scenario = task.active_scenario()
         if scenario in ("roundabout", "crossroad", "merge"):
-            must_wait = task.traffic.give_way(task.ego_state(physics)).stop < np.inf
-            return index["stop" if must_wait else "drive"]
+            line = task.traffic.give_way(task.ego_state(physics)).stop  # [m] to where the ego must wait (inf: go)
+            ours = task.route_traffic.stop_line(task.route_s, scenario)  # [m] to the scenario's stop point
+            # wait at the scenario's stop point when the rules say so there and the comfortable stop still ends
+            # there: past it the ego has committed (a zone to keep clear later on is the MPC's: an obstacle)
+            wait = (ours is not None and abs(line - ours) < SAME_LINE
+                    and task.operative.shortest_stop(task.speed) <= line + COMMITTED)
+            return index["stop" if wait else "drive"]
         if scenario != "lane_change":
             return 0  # follow the path: any action
         keep = index.get("keep", index.get("drive"))
@@ -129,9 +124,9 @@ def rules_policy(env: gym.Env) -> Policy:
         if target == 0.0:  # in the route's lane: overtake a slow leader
             ahead, v_ahead, _, _ = route.lane_gaps(0.0)
             slow = ahead < OVERTAKE_RANGE and v_ahead < wanted - OVERTAKE_MARGIN
-            return index["left"] if slow and _lane_free(route.lane_gaps(width), speed) else keep
-        back = _lane_free(route.lane_gaps(0.0), speed)  # in the left lane: back once the right lane has room
-        return index["right"] if back else keep
+            room = route.lane_length_left(task.route_s) >= OVERTAKE_ROOM
+            return index["left"] if slow and room and route.lane_free(width, speed) else keep
+        return index["right"] if route.lane_free(0.0, speed) else keep  # back once the right lane has room
 
     return act
 

@@ -3,9 +3,10 @@ polynomial in time (zero lateral speed and acceleration at both ends), its durat
 lateral acceleration and jerk of the offset within their bounds:
 
     d(t) = d0 + w (10 u^3 - 15 u^4 + 6 u^5),  u = t / T,
-    max |d''| = (10 / sqrt(3)) |w| / T^2,      max |d'''| = 60 |w| / T^3,
+    max |d'| = 1.875 |w| / T,   max |d''| = (10 / sqrt(3)) |w| / T^2,   max |d'''| = 60 |w| / T^3,
 
-so T = max(sqrt(10 |w| / (sqrt(3) a_max)), (60 |w| / j_max)^(1/3)) (tests/test_control.py checks sampled profiles
+so T = max(sqrt(10 |w| / (sqrt(3) a_max)), (60 |w| / j_max)^(1/3)), and for a car at speed v no shorter than
+1.875 |w| / (v tan(heading_max)), the angle it moves across at (tests/test_control.py checks sampled profiles
 against the bounds by finite differences). The lateral controller tracks the path shifted by d(t).
 """
 
@@ -14,7 +15,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-PEAK_ACCEL = 10.0 / math.sqrt(3.0)  # max |d''| of the quintic step per unit width and 1/T^2
+PEAK_RATE = 1.875  # max |d'| of the quintic step per unit width and 1/T
+PEAK_ACCEL = 10.0 / math.sqrt(3.0)  # max |d''| per unit width and 1/T^2
 PEAK_JERK = 60.0  # max |d'''| per unit width and 1/T^3
 
 
@@ -28,13 +30,18 @@ class LaneOffset:
     t0: float = 0.0
 
     @classmethod
-    def within(cls, start: float, width: float, accel_max: float, jerk_max: float, t0: float = 0.0) -> LaneOffset:
-        """The shortest manoeuvre by `width` [m] whose lateral acceleration stays within `accel_max` [m/s^2]
-        and jerk within `jerk_max` [m/s^3]."""
-        if accel_max <= 0 or jerk_max <= 0:
-            raise ValueError(f"bounds must be > 0, got {accel_max}, {jerk_max}")
+    def within(cls, start: float, width: float, accel_max: float, jerk_max: float, t0: float = 0.0,
+               speed: float = math.inf, heading_max: float = 1.5) -> LaneOffset:
+        """The shortest manoeuvre by `width` [m] whose lateral acceleration stays within `accel_max` [m/s^2],
+        jerk within `jerk_max` [m/s^3] and, for a car going `speed` [m/s], the angle it moves across at within
+        `heading_max` [rad] (slow cars take longer)."""
+        if accel_max <= 0 or jerk_max <= 0 or not 0 < heading_max <= 1.5:
+            raise ValueError(f"bounds must be > 0 (heading_max <= 1.5 rad), got {accel_max}, {jerk_max}, "
+                             f"{heading_max}")
         w = abs(width)
-        duration = max(math.sqrt(PEAK_ACCEL * w / accel_max), (PEAK_JERK * w / jerk_max) ** (1.0 / 3.0), 1e-3)
+        slowest = PEAK_RATE * w / (max(speed, 0.1) * math.tan(heading_max))
+        duration = max(math.sqrt(PEAK_ACCEL * w / accel_max), (PEAK_JERK * w / jerk_max) ** (1.0 / 3.0), slowest,
+                       1e-3)
         return cls(start, width, duration, t0)
 
     @property

@@ -25,9 +25,9 @@ previous solution (OSQP's warm start); a solution is moved onto the hard bounds 
 and its states integrated exactly (`plan_within_bounds`). For the same inputs a solver gives the same bits: the
 settings leave nothing to time (rho adapts every `adaptive_rho_interval` iterations, no time limit), and `reset`
 sets the solver up anew so every episode starts from the same state. Fallbacks: when the comfort envelope cannot
-keep a soft constraint (its slack exceeds `emergency_slack`, e.g. a vehicle cutting in), the same programme is
-solved again with the emergency bounds; if OSQP does not report a solution, the plan is a comfortable braking to
-rest (`MPCPlan.fallback`).
+keep the car behind a leader's rear by `emergency_gap` or before a stop point (e.g. a vehicle cutting in), the same
+programme is solved again with the emergency bounds; if OSQP does not report a solution, the plan is a comfortable
+braking to rest (`MPCPlan.fallback`).
 """
 
 from __future__ import annotations
@@ -46,6 +46,7 @@ from mjdrive.config import Config, ConfigError, param
 INFINITY = osqp.ext_builtin.OSQP_INFTY  # OSQP's infinite bound (1e30)
 MODES = ("cruise", "follow", "stop")  # the plan's mode: the soft constraint that binds first (within BINDING)
 BINDING = 0.1  # [m]
+STOP_TOLERANCE = 0.05  # [m] a comfort plan passing a stop point by less (the solver's tolerance) needs no emergency
 NO_LIMIT = 1e9  # [m] a position bound that never binds
 
 
@@ -61,10 +62,10 @@ class MPCConfig(Config):
     emergency_accel_min: float = param(-8.0, "braking allowed when the comfort bounds cannot keep a gap", "m/s^2",
                                        ge=-10.0, lt=0.0)
     emergency_jerk_max: float = param(25.0, "|jerk| allowed in an emergency", "m/s^3", gt=0.0, le=200.0)
-    emergency_slack: float = param(0.5, "a soft constraint violated by more than this triggers the emergency "
-                                   "bounds", "m", gt=0.0, le=10.0)
+    emergency_gap: float = param(1.5, "a comfort plan that comes closer than this to a leader's rear (or passes a "
+                                 "stop point) is solved again with the emergency bounds", "m", ge=0.0, le=10.0)
     headway: float = param(1.5, "T: time gap to the leader", "s", ge=0.0, le=5.0)
-    standstill_gap: float = param(5.0, "d0: gap to the leader at rest (bumper to bumper)", "m", ge=0.5, le=20.0)
+    standstill_gap: float = param(4.0, "d0: gap to the leader at rest (bumper to bumper)", "m", ge=0.5, le=20.0)
     stop_decel: float = param(1.5, "b: the comfortable stopping profile's deceleration", "m/s^2", gt=0.1, le=5.0)
     speed_weight: float = param(1.0, "w_v", "1/(m/s)^2", gt=0.0)
     accel_weight: float = param(0.5, "w_a", "1/(m/s^2)^2", ge=0.0)
@@ -137,6 +138,7 @@ class MPCPlan:
     mode: str  # "cruise", "follow" or "stop": the constraint that binds first (cruise: none)
     status: str  # "solved", "emergency" (solved with the emergency bounds) or "fallback" (OSQP failed)
     iterations: int
+    intrusion: float = 0.0  # [m] how far it passes a stop point or comes within emergency_gap of a leader (> 0)
 
     def accel_at(self, t: float, step: float) -> float:
         """The planned acceleration [m/s^2] t [s] from now (piecewise linear: constant jerk per step)."""
@@ -285,7 +287,7 @@ class LongitudinalMPC:
         if self._emergency:
             self._set_bounds(emergency=False)
         plan = self._solve()
-        if plan is not None and plan.slack > c.emergency_slack:
+        if plan is not None and plan.intrusion > 0.0:
             self._set_bounds(emergency=True)
             emergency = self._solve(emergency=True)
             plan = emergency if emergency is not None else plan
@@ -297,12 +299,14 @@ class LongitudinalMPC:
             return None
         n = self.config.horizon
         states, jerks = np.empty((n + 1, 3)), np.empty(n)
-        slack, mode = plan_within_bounds(
-            self._l[0:3], solution[self._nx: self._nx + n], self.config.step, self._l[self._rows_accel],
+        c = self.config
+        slack, mode, intrusion = plan_within_bounds(
+            self._l[0:3], solution[self._nx: self._nx + n], c.step, self._l[self._rows_accel],
             self._u[self._rows_accel], self._u[self._rows_jerk], self._u[self._rows_stop: self._rows_stop + n],
-            self._u[self._rows_follow: self._rows_follow + n], self.config.headway, states, jerks)
+            self._u[self._rows_follow: self._rows_follow + n], c.headway, c.standstill_gap - c.emergency_gap,
+            states, jerks)
         return MPCPlan(states[:, 0], states[:, 1], states[:, 2], jerks, slack, MODES[mode],
-                       "emergency" if emergency else "solved", iterations)
+                       "emergency" if emergency else "solved", iterations, intrusion)
 
     def fallback(self, speed: float, accel: float) -> MPCPlan:
         """Braking to rest at the comfort bound, the jerk bound permitting: the plan when OSQP gives none."""
@@ -320,15 +324,16 @@ class LongitudinalMPC:
 
 
 @jit
-def plan_within_bounds(initial, jerks, h, a_min, a_max, j_max, stop, follow, headway, states, out):
+def plan_within_bounds(initial, jerks, h, a_min, a_max, j_max, stop, follow, headway, near, states, out):
     """A solution's jerks moved onto the hard bounds they exceed within OSQP's tolerance (about 1e-3 of the
     problem's scale) and the states (s, v, a) integrated exactly from `initial` into `states` (N + 1, 3), the jerks
     into `out` (N,): a plan that meets its bounds and its dynamics to rounding. Returns its largest violation [m]
-    of the position constraints s_k <= stop_k and s_k + headway v_k <= follow_k, and its mode (an index of MODES:
-    the constraint within BINDING of binding at the earliest step; cruise if none)."""
+    of the position constraints s_k <= stop_k and s_k + headway v_k <= follow_k; its mode (an index of MODES: the
+    constraint within BINDING of binding at the earliest step; cruise if none); and its intrusion [m]: how far it
+    passes a stop point or comes nearer than follow_k + `near` (a leader's rear less the emergency gap)."""
     s, v, a = initial[0], initial[1], initial[2]
     states[0, 0], states[0, 1], states[0, 2] = s, v, a
-    slack, mode = 0.0, 0
+    slack, mode, intrusion = 0.0, 0, -np.inf
     for k in range(len(jerks)):
         j = min(max(jerks[k], -j_max), j_max)
         j = min(max(j, (a_min - a) / h), (a_max - a) / h)
@@ -337,6 +342,7 @@ def plan_within_bounds(initial, jerks, h, a_min, a_max, j_max, stop, follow, hea
         states[k + 1, 0], states[k + 1, 1], states[k + 1, 2] = s, v, a
         stop_room, follow_room = stop[k] - s, follow[k] - s - headway * v
         slack = max(slack, -stop_room, -follow_room)
+        intrusion = max(intrusion, -stop_room - STOP_TOLERANCE, s - follow[k] - near)
         if mode == 0 and min(stop_room, follow_room) < BINDING:
             mode = 2 if stop_room <= follow_room else 1
-    return slack, mode
+    return slack, mode, intrusion

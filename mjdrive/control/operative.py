@@ -21,6 +21,8 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from mjdrive.config import Config, param
 from mjdrive.control.lane_change import LaneOffset
 from mjdrive.control.lqr import STEER_LAG, LateralLQR, LQRWeights
@@ -33,6 +35,7 @@ DECISIONS = ("drive", "stop", "left", "right")
 DRIVE, STOP, LEFT, RIGHT = DECISIONS
 STOP_MARGIN = 0.15  # [m] the front bumper comes to rest this far before a stop point (never past it)
 TRACKING_MARGIN = 0.9  # a lane change is planned at this share of its bounds: the car tracks it a little late
+CROSSING_CLEARANCE = 1.0  # [m] kept to a road user crossing the car's lane ahead
 
 
 @dataclass(frozen=True)
@@ -51,8 +54,12 @@ class OperativeConfig(Config):
                                            "m", gt=0.5, le=100.0, length=2)
     curve_footprint: float = param(6.0, "the curve bounds hold this far around the car's centre", "m", gt=0.0,
                                    le=50.0)
+    approach_speed: float = param(3.0, "the speed at a give-way line of the active scenario, whatever the "
+                                  "decision (a later stop stays comfortable)", "m/s", gt=0.0, le=20.0)
     lane_change_accel: float = param(1.5, "lateral acceleration bound of a lane change", "m/s^2", gt=0.1, le=5.0)
     lane_change_jerk: float = param(2.0, "lateral jerk bound of a lane change", "m/s^3", gt=0.1, le=20.0)
+    lane_change_heading: float = param(0.2, "a lane change moves across at most at this angle (slow cars take "
+                                       "longer)", "rad", gt=0.01, le=1.0)
     delay_compensation: bool = param(True, "predict the path errors over the steering delay (the servo's lag and "
                                      "the car's steering latency)")
     lqr_lateral: float = param(1.0, "LQR weight on the lateral error", "1/m^2", ge=0.0)
@@ -80,6 +87,8 @@ class Situation:
     left_lane: bool = False  # a lane change to the left is possible here
     right_lane: bool = False  # ... to the right (back towards the route's lane, or a right neighbour)
     lane_end: float | None = None  # [m] front bumper to the end of the lane the car is in (off the route's lane)
+    crossing: float | None = None  # [m] front bumper to a road user crossing its lane ahead (None: none)
+    back_free: bool = True  # the route's own lane has room for the car to come back to it now
 
 
 @dataclass
@@ -146,8 +155,8 @@ class OperativeLevel:
         if self.manoeuvre is None:
             target = self.offset_target
             ending = situation.lane_end is not None and situation.lane_end < self._lane_change_room(situation)
-            if target != 0.0 and (not situation.active or ending):  # back to the route's own lane
-                target = 0.0
+            if target != 0.0 and (not situation.active or ending):  # back to the route's own lane, when it has room
+                target = 0.0 if situation.back_free else target
             elif decision == LEFT and situation.left_lane:
                 target += situation.lane_width
             elif decision == RIGHT and situation.right_lane:
@@ -158,7 +167,8 @@ class OperativeLevel:
                 c = self.config
                 self.manoeuvre = LaneOffset.within(self.offset_target, target - self.offset_target,
                                                    TRACKING_MARGIN * c.lane_change_accel,
-                                                   TRACKING_MARGIN * c.lane_change_jerk, self.time)
+                                                   TRACKING_MARGIN * c.lane_change_jerk, self.time,
+                                                   situation.speed, c.lane_change_heading)
                 self.offset_target = target
         if self.manoeuvre is None:
             return decision, self.offset_target, 0.0, 0.0
@@ -169,7 +179,8 @@ class OperativeLevel:
         """[m] a lane change back takes at the current speed, with a margin."""
         c = self.config
         duration = LaneOffset.within(0.0, situation.lane_width, TRACKING_MARGIN * c.lane_change_accel,
-                                     TRACKING_MARGIN * c.lane_change_jerk).duration
+                                     TRACKING_MARGIN * c.lane_change_jerk, 0.0, situation.speed,
+                                     c.lane_change_heading).duration
         return max(situation.speed, 1.0) * duration + 10.0
 
     def _stop_point(self, situation: Situation, decision: str) -> float | None:
@@ -178,18 +189,32 @@ class OperativeLevel:
         points = []
         if situation.lane_end is not None:  # the end of a lane off the route's: never past it
             points.append(situation.lane_end)
+        if situation.crossing is not None:  # a road user crossing ahead: stop short of it until it has gone
+            points.append(situation.crossing - CROSSING_CLEARANCE)
         if decision == STOP:
             if situation.stop is not None:
                 points.append(situation.stop)
                 self.stop_hold = None
             else:
                 if self.stop_hold is None:  # where a comfortable braking from here ends, kept
-                    b = self.config.mpc.stop_decel
-                    self.stop_hold = front + situation.speed**2 / (2.0 * b) + 0.5
+                    self.stop_hold = front + self.braking_distance(situation.speed) + 0.5
                 points.append(self.stop_hold - front)
         else:
             self.stop_hold = None
         return min(points) - STOP_MARGIN if points else None
+
+    def shortest_stop(self, speed: float) -> float:
+        """[m] the shortest stop from `speed` [m/s] within the comfort envelope (its strongest braking at once):
+        a stop point nearer than this cannot be kept without the emergency bounds."""
+        v = max(speed, 0.0)
+        return v * v / (2.0 * -self.config.mpc.accel_min)
+
+    def braking_distance(self, speed: float) -> float:
+        """[m] the comfortable stop from `speed` [m/s] takes: the stopping profile's deceleration, reached at the jerk
+        bound."""
+        c = self.config.mpc
+        v = max(speed, 0.0)
+        return v * v / (2.0 * c.stop_decel) + v * c.stop_decel / c.jerk_max
 
     # --- one control step --------------------------------------------------------------------------------
     def __call__(self, situation: Situation) -> tuple[float, float, float]:
@@ -202,6 +227,10 @@ class OperativeLevel:
         stop = self._stop_point(situation, decision)
         plan_ahead = status.plan.s[1:] if status.plan is not None else v * self.mpc.times[1:]
         v_ref = self.profile.speed(situation.s + plan_ahead)
+        if situation.stop is not None:  # approach the give-way line slowly enough to stop at it
+            c = self.config
+            room = np.maximum(situation.stop - plan_ahead, 0.0)
+            v_ref = np.minimum(v_ref, np.sqrt(c.approach_speed**2 + 2.0 * c.curve_decel * room))
         start = time.perf_counter()
         plan = self.mpc.solve(v, self.accel, v_ref, stop, situation.leaders)
         solve_ms = 1e3 * (time.perf_counter() - start)

@@ -9,14 +9,17 @@ the path whatever the action ("Follow Path", §4.2).
 
 Ground truth each control period (`RouteTraffic.situation`): the car's route coordinates, the stop point of
 the active scenario (the next give-way line of the conflict zones on the route, the lines traffic stops at),
-the leaders (road users whose footprint overlaps the band of the lane the car is in, or moves to, ahead of it,
-their speed along the route and its change since the last period; at merges, the vehicle traffic's zipper
-puts ahead of the ego), the lanes a lane change can reach and the end of a neighbour lane the car is in.
+the leaders (road users going the route's way whose footprint overlaps the band of the lane the car is in, or
+moves to, ahead of it, or will within CUT_IN_TIME; their speed along the route and its change since the last
+period; at merges, the vehicle traffic's zipper puts ahead of the ego), the nearest road user crossing a band
+(a point to stop before, not a leader to follow), the lanes a lane change can reach and the end of a
+neighbour lane the car is in.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -39,6 +42,27 @@ LOOK_BEHIND = 15.0  # [m] road users farther behind are left out of the projecti
 MAX_LEADER_ACCEL = 8.0  # [m/s^2] bound on a leader's measured acceleration (a respawned slot jumps)
 LANE_CHANGE_ROOM = 70.0  # [m] a lane change starts only where the lane it leads to goes on this far
 MERGE_RANGE = 60.0  # [m] the zipper's leader is asked for within this distance of a merge point
+CUT_IN_TIME = 1.5  # [s] a road user moving across into the ego's lane within this time is a leader already
+ALIGNED = 0.5  # cos of the angle to the route above which a road user goes the route's way (else it crosses)
+OVERLAP = 1.0  # [m] a road user reaching this far back beside the ego's front is still ahead of it
+# Gap acceptance of a lane change (`RouteTraffic.lane_free`)
+LANE_GAP = 4.0  # [m] bumper to bumper, at rest
+LANE_HEADWAY = 0.6  # [s]
+SAFE_DECEL = 2.0  # [m/s^2] the most the ego or its new follower has to brake to match speeds
+
+
+class Seen(NamedTuple):
+    """The road users near the ego, projected onto the route (`RouteTraffic.observe`), each (K,)."""
+
+    ahead: np.ndarray  # [m] the ego's front bumper to their rear (along the route)
+    behind: np.ndarray  # [m] their front to the ego's rear
+    offset: np.ndarray  # [m] their centre's offset from the route (left > 0)
+    half_lat: np.ndarray  # [m] half their footprint's extent across the route
+    along: np.ndarray  # [m/s] their speed along the route
+    accel: np.ndarray  # [m/s^2] its change since the last control period
+    across: np.ndarray  # [m/s] their speed across the route (left > 0)
+    aligned: np.ndarray  # bool: going the route's way
+    indicator: np.ndarray  # the lane-change indicator they show: +1 left, -1 right, 0 none
 
 
 def operative_decision(action: str, scenario: str) -> str:
@@ -65,6 +89,7 @@ class RouteTraffic:
         lanes = road_map.lanes
         self.ends = np.array([self.starts[k] + lanes[lane].length for k, lane in enumerate(route)])  # [m]
         self.lane_width = np.array([lanes[lane].width for lane in route])  # [m]
+        self.index = 0  # the route lane of the last `situation`
         self.left = [road_map.left_neighbour[lane] for lane in route]
         self.right = [road_map.right_neighbour[lane] for lane in route]
         self.reset(0)
@@ -120,31 +145,46 @@ class RouteTraffic:
             self._speed[near], self._generation[near] = along, generation
         half_long = c * half[:, 0] + sn * half[:, 1]  # [m] the footprint's extent along the route
         front = s + self.half_length
-        self.seen = (route_s - half_long - front,  # [m] gap ahead: the ego's front bumper to their rear
-                     s - self.half_length - (route_s + half_long),  # [m] gap behind: their front to the ego's rear
-                     offset, sn * half[:, 0] + c * half[:, 1], along, accel)
+        self.seen = Seen(route_s - half_long - front, s - self.half_length - (route_s + half_long), offset,
+                         sn * half[:, 0] + c * half[:, 1], along, accel,
+                         traffic.speeds()[near] * np.sin(rel_yaw), np.cos(rel_yaw) > ALIGNED,
+                         traffic.indicators()[near])
 
-    def in_band(self, centre: float) -> np.ndarray:
-        """Which of the observed road users overlap the band of the lane centred `centre` [m] from the route."""
-        _, _, offset, half_lat, _, _ = self.seen
-        return np.abs(offset - centre) < half_lat + self.half_width + BAND_MARGIN
+    def in_band(self, centre: float, ahead_time: float = 0.0) -> np.ndarray:
+        """Which of the observed road users overlap the band of the lane centred `centre` [m] from the route, now
+        (or `ahead_time` [s] from now, moving across at their present lateral speed)."""
+        seen = self.seen
+        offset = seen.offset + seen.across * ahead_time
+        return np.abs(offset - centre) < seen.half_lat + self.half_width + BAND_MARGIN
 
-    def leaders(self, centres: tuple[float, ...]) -> list[Leader]:
-        """The nearest observed road user ahead in the band of each lane centred `centres` [m] from the route."""
-        ahead, behind, _, _, along, accel = self.seen
-        out = []
+    def leaders(self, centres: tuple[float, ...]) -> tuple[list[Leader], float | None]:
+        """(the nearest road user ahead going the route's way in the band of each lane centred `centres` [m] from
+        the route, now, or moving into it within CUT_IN_TIME, or signalling a lane change into it; the gap [m] to
+        the nearest one crossing or coming the other way in a band now, None if none)."""
+        seen = self.seen
+        near = (seen.ahead > -OVERLAP) & (seen.ahead < LOOK_AHEAD)
+        out, crossing = [], None
+        target = seen.offset + seen.indicator * self.lane_width[self.index]  # where a signalled change goes
         for centre in dict.fromkeys(centres):  # each lane once
-            inside = self.in_band(centre) & (ahead > -self.half_length) & (behind < 0.0) & (ahead < LOOK_AHEAD)
+            now = self.in_band(centre)
+            signalled = (seen.indicator != 0) & (np.abs(target - centre) < seen.half_lat + self.half_width)
+            coming = self.in_band(centre, CUT_IN_TIME) | signalled
+            inside = near & seen.aligned & (now | coming)
             if inside.any():
-                k = np.flatnonzero(inside)[np.argmin(ahead[inside])]
-                out.append(Leader(max(float(ahead[k]), 0.0), max(float(along[k]), 0.0), float(accel[k])))
-        return out
+                k = np.flatnonzero(inside)[np.argmin(seen.ahead[inside])]
+                out.append(Leader(max(float(seen.ahead[k]), 0.0), max(float(seen.along[k]), 0.0),
+                                  float(seen.accel[k])))
+            across = near & ~seen.aligned & now
+            if across.any():
+                gap = max(float(seen.ahead[across].min()), 0.0)
+                crossing = gap if crossing is None else min(crossing, gap)
+        return out, crossing
 
     def lane_gaps(self, centre: float) -> tuple[float, float, float, float]:
         """(gap ahead [m], its speed [m/s], gap behind [m], its speed [m/s]) of the nearest observed road users
         before and after the ego in the band of the lane centred `centre` [m]; a road user beside the ego has gap
         0 both ways; inf and 0 where there is none."""
-        ahead, behind, _, _, along, _ = self.seen
+        ahead, behind, along = self.seen.ahead, self.seen.behind, self.seen.along
         band = self.in_band(centre)
         beside = band & (ahead <= 0.0) & (behind <= 0.0)
         if beside.any():
@@ -166,17 +206,31 @@ class RouteTraffic:
         error = (yaw - float(self.heading(rear_s[0])) + math.pi) % (2 * math.pi) - math.pi
         return float(rear_s[0]), float(rear_d[0]), error
 
+    def lane_free(self, centre: float, speed: float) -> bool:
+        """Whether the lane centred `centre` [m] from the route takes the ego at `speed` [m/s] now (gap acceptance
+        of a lane change, MOBIL's safety criterion with a headway): the ego can keep LANE_GAP plus LANE_HEADWAY of
+        its speed behind the road user ahead braking at most SAFE_DECEL to its speed, and the road user behind
+        likewise behind the ego."""
+        ahead, v_ahead, behind, v_behind = self.lane_gaps(centre)
+        front = LANE_GAP + LANE_HEADWAY * speed + max(speed - v_ahead, 0.0) ** 2 / (2.0 * SAFE_DECEL)
+        rear = LANE_GAP + LANE_HEADWAY * v_behind + max(v_behind - speed, 0.0) ** 2 / (2.0 * SAFE_DECEL)
+        return ahead >= front and behind >= rear
+
+    def lane_length_left(self, s: float) -> float:
+        """[m] from arc length s to where the route lane there, and its neighbours, end."""
+        return float(self.ends[self.route_index(s)] - s)
+
     def situation(self, s: float, pose: tuple[float, float, float], speed: float, decision: str,
                   lanes: tuple[float, ...], traffic: Traffic, ego: EgoState, wheelbase: float) -> Situation:
         """The ground truth of this control period for the operative level: the car's centre at s [m] along the
         route, its pose (x, y, yaw) [m, m, rad]; `lanes`: the centre offsets [m] of the lane the car is in and,
         during a lane change, the one it moves to, the last its target."""
+        self.index = k = self.route_index(s)
         self.observe(s, traffic)
         rear_s, rear_lateral, heading_error = self.rear_axle(s, *pose, wheelbase)
         scenario = self.scenario_at(s)
         active = scenario != FOLLOW
-        k = self.route_index(s)
-        leaders = self.leaders(lanes)
+        leaders, crossing = self.leaders(lanes)
         front = s + self.half_length
         merging = np.any((self.merges > front - self.half_length) & (self.merges < front + MERGE_RANGE))
         if active and scenario != LANE_CHANGE and merging and ego.path is not None:  # merges: the zipper's leader
@@ -189,5 +243,7 @@ class RouteTraffic:
         left = target == 0.0 and self.left[k] is not None and room
         right = target > 0.0 or (target == 0.0 and self.right[k] is not None and room)
         stop = self.stop_line(s, scenario) if active else None
+        back_free = target == 0.0 or self.lane_free(0.0, speed)
         return Situation(s, rear_s, rear_lateral, heading_error, speed, operative_decision(decision, scenario),
-                         active, stop, tuple(leaders), float(self.lane_width[k]), left, right, lane_end)
+                         active, stop, tuple(leaders), float(self.lane_width[k]), left, right, lane_end, crossing,
+                         back_free)

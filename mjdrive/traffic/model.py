@@ -54,6 +54,9 @@ from mjdrive.traffic.intentions import (
     AFTER,
     BEFORE,
     CROSSROAD,
+    LANE_CHANGE,
+    LEFT,
+    RIGHT,
     ROUNDABOUT,
     SCENARIOS,
     LaneRoles,
@@ -687,6 +690,14 @@ class Traffic:
             return self.intention.copy()
         out = np.full((self.n, len(SCENARIOS)), -1, dtype=np.int64)
         out[self.vehicle_slots] = self.intention
+        return out
+
+    def indicators(self) -> np.ndarray:
+        """(N,) the lane-change indicator each slot shows now: +1 left, -1 right, 0 none (pedestrians: 0)."""
+        out = np.zeros(self.n, dtype=np.int64)
+        intended = self.intention[:, LANE_CHANGE]
+        on = (self.lc_signal >= 0.0) & self.active
+        out[self.vehicle_slots] = np.where(on & (intended == LEFT), 1, np.where(on & (intended == RIGHT), -1, 0))
         return out
 
     def velocities(self) -> np.ndarray:
