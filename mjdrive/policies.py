@@ -10,6 +10,7 @@ import gymnasium as gym
 import numpy as np
 
 from mjdrive.control import PurePursuit
+from mjdrive.tasks.decisions import SAME_LINE
 
 Policy = Callable[[dict], np.ndarray]
 POLICIES = ("pure_pursuit", "always_go", "autopilot", "random", "idle", "rules", "always_drive", "always_stop")
@@ -91,7 +92,6 @@ OVERTAKE_RANGE = 40.0  # [m] a leader nearer than this that is slower than the e
 OVERTAKE_MARGIN = 2.0  # [m/s] ... by at least this much
 OVERTAKE_ROOM = 120.0  # [m] ... where the left lane goes on at least this far (out, past, and back)
 COMMITTED = 0.3  # [m] a stop that cannot end within this past the give-way line is not made: the ego goes on
-SAME_LINE = 1.5  # [m] traffic's wait point this close to the scenario's stop point is that point
 
 
 def rules_policy(env: gym.Env) -> Policy:
@@ -121,12 +121,15 @@ def rules_policy(env: gym.Env) -> Policy:
         route.observe(task.route_s, task.traffic, track=False)
         target, width = task.operative.lanes()[-1], route.lane_width[route.route_index(task.route_s)]
         speed, wanted = task.speed, task.operative.profile.speed(task.route_s)
-        if target == 0.0:  # in the route's lane: overtake a slow leader
-            ahead, v_ahead, _, _ = route.lane_gaps(0.0)
-            slow = ahead < OVERTAKE_RANGE and v_ahead < wanted - OVERTAKE_MARGIN
+        ahead, v_ahead, _, _ = route.lane_gaps(0.0)
+        slow = ahead < OVERTAKE_RANGE and v_ahead < wanted - OVERTAKE_MARGIN  # a slow road user ahead on the right
+        if target == 0.0:  # in the route's lane: overtake it
+            left_ahead, v_left, _, _ = route.lane_gaps(width)
+            faster = left_ahead > OVERTAKE_RANGE or v_left > v_ahead + OVERTAKE_MARGIN
             room = route.lane_length_left(task.route_s) >= OVERTAKE_ROOM
-            return index["left"] if slow and room and route.lane_free(width, speed) else keep
-        return index["right"] if route.lane_free(0.0, speed) else keep  # back once the right lane has room
+            return index["left"] if slow and faster and room and route.lane_free(width, speed) else keep
+        # in the left lane: back once past the slow road users, when the right lane has room
+        return index["right"] if not slow and route.lane_free(0.0, speed) else keep
 
     return act
 

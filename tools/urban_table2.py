@@ -1,8 +1,11 @@
-"""Study 002's Table 2 on `urban/concatenated` (or another urban task) for a driver, beside the paper's rows.
+"""Study 002's Table 2 on `urban/concatenated` (or another urban task) for one or more drivers, beside the
+paper's rows.
 
-    python -m tools.urban_table2 --policy autopilot --episodes 200 --out results/urban/table2_autopilot.md
+    python -m tools.urban_table2 --policy autopilot rules --episodes 200 --out results/urban/table2.md
 
-Episode i runs with seed SEED + i. Metrics per episode from the task's `info` (comfort metrics sampled at the
+Episode i of every driver runs with seed SEED + i. The drivers of the decision action set (`rules`,
+`always_drive`, `always_stop`) drive the task with `decisions=True` (the operative level underneath); the others
+with throttle, steer and brake. Metrics per episode from the task's `info` (comfort metrics sampled at the
 control rate, 10 Hz, Savitzky-Golay smoothed: `mjdrive.comfort`); the table shows their means over episodes,
 like the paper's; comfort and time over successful episodes only.
 """
@@ -19,7 +22,7 @@ import numpy as np
 from mjdrive.cli import ArgumentParser, int_at_least, run_reporting_errors
 from mjdrive.envs import make_env
 from mjdrive.envs.fanout import fan_out
-from mjdrive.policies import POLICIES, make_policy
+from mjdrive.policies import DECISION_POLICIES, POLICIES, make_policy
 from tools.report import publish
 
 PAPER = {"Ours (paper, hybrid DRL)": (95.76, 4.37, 6.20, 3.33, 76.85, 7.60),
@@ -27,25 +30,27 @@ PAPER = {"Ours (paper, hybrid DRL)": (95.76, 4.37, 6.20, 3.33, 76.85, 7.60),
 COLUMNS = ("success [%]", "p95 jerk [m/s^3]", "max jerk [m/s^3]", "p95 accel [m/s^2]", "time [s]", "speed [m/s]")
 
 
-_ENVS: dict[str, gym.Env] = {}  # this process's env of the last task (a worker keeps it between episodes)
+_ENVS: dict[tuple[str, bool], gym.Env] = {}  # this process's env of the last task (a worker keeps it)
 
 
-def task_env(task: str) -> gym.Env:
-    """The urban `task`'s env, built once per process (the concatenated route's takes ~0.4 s); an episode's
-    reset with its seed sets all of its state, so a reused env drives the episode a new one would."""
-    if task not in _ENVS:
+def task_env(task: str, decisions: bool = False) -> gym.Env:
+    """The urban `task`'s env (with the decision action set or not), built once per process (the concatenated
+    route's takes ~0.4 s); an episode's reset with its seed sets all of its state, so a reused env drives the
+    episode a new one would."""
+    key = (task, decisions)
+    if key not in _ENVS:
         for env in _ENVS.values():
             env.close()
         _ENVS.clear()
-        _ENVS[task] = make_env("urban", task)
-    return _ENVS[task]
+        _ENVS[key] = make_env("urban", task, decisions=decisions)
+    return _ENVS[key]
 
 
 def episode(spec: tuple[str, str, int], index: int) -> dict:
     """Episode `index` of (task, policy, first seed): its end and metrics (a fan-out job: depends only on
     its arguments)."""
     task, policy, seed = spec
-    env = task_env(task)
+    env = task_env(task, policy in DECISION_POLICIES)
     act = make_policy(policy, env, seed + index)
     observation, info = env.reset(seed=seed + index)
     while True:
@@ -76,33 +81,46 @@ def run(task: str, policy: str, episodes: int, seed: int, workers: int = 0, ray:
     return [rows[i] for i in range(episodes)]
 
 
-def markdown(task: str, policy: str, rows: list[dict], seed: int) -> str:
-    ok = [r for r in rows if r["end"] == "success"]
-    ends = {e: sum(r["end"] == e for r in rows) for e in ("success", "collision", "off_route", "time_limit")}
-    mean = (lambda key: float(np.mean([r[key] for r in ok])) if ok else float("nan"))  # noqa: E731
-    ours = (100.0 * len(ok) / len(rows), mean("jerk_p95"), mean("jerk_max"), mean("accel_p95"), mean("time"),
-            mean("speed"))
-    lines = [f"# Table 2 on urban/{task}: {policy}", "",
-             f"`python -m tools.urban_table2 --task {task} --policy {policy} --episodes {len(rows)} --seed {seed}`: "
-             f"{len(rows)} episodes (seeds {seed}-{seed + len(rows) - 1}); ends: "
-             + ", ".join(f"{n} {e}" for e, n in ends.items()) + ". Means over episodes (comfort, time and speed "
-             "over the successful ones), beside the paper's rows (CARLA Town03, its own route and traffic: a "
-             "comparison of magnitudes, not of the same world).", "",
-             "| driver | " + " | ".join(COLUMNS) + " |", "| --- |" + " ---: |" * len(COLUMNS),
-             f"| mjdrive {policy} | " + " | ".join(f"{v:.2f}" for v in ours) + " |"]
+DRIVER_NAMES = {"rules": "rules + operative level", "autopilot": "privileged autopilot"}
+ENDS = ("success", "collision", "off_route", "time_limit")
+
+
+def markdown(task: str, policies: str | list[str], rows: list[dict] | list[list[dict]], seed: int) -> str:
+    """The table of one run: a row per driver (`policies`, with their episodes' `rows`), the paper's rows."""
+    if isinstance(policies, str):
+        policies, rows = [policies], [rows]
+    n = len(rows[0])
+    lines = [f"# Table 2 on urban/{task}: {', '.join(policies)}", "",
+             f"`python -m tools.urban_table2 --task {task} --policy {' '.join(policies)} --episodes {n} "
+             f"--seed {seed}`: {n} episodes per driver (seeds {seed}-{seed + n - 1}). Means over episodes (comfort, "
+             "time and speed over the successful ones), beside the paper's rows (CARLA Town03, its own route and "
+             "traffic: a comparison of magnitudes, not of the same world).", "",
+             "| driver | " + " | ".join(COLUMNS) + " |", "| --- |" + " ---: |" * len(COLUMNS)]
+    notes = []
+    for policy, episodes in zip(policies, rows, strict=True):
+        ok = [r for r in episodes if r["end"] == "success"]
+        mean = (lambda key, ok=ok: float(np.mean([r[key] for r in ok])) if ok else float("nan"))  # noqa: E731
+        ours = (100.0 * len(ok) / len(episodes), mean("jerk_p95"), mean("jerk_max"), mean("accel_p95"),
+                mean("time"), mean("speed"))
+        lines.append(f"| mjdrive {DRIVER_NAMES.get(policy, policy)} | " + " | ".join(f"{v:.2f}" for v in ours)
+                     + " |")
+        ends = {e: sum(r["end"] == e for r in episodes) for e in ENDS}
+        failed = [r for r in episodes if r["end"] != "success"]
+        note = f"{policy}: " + ", ".join(f"{k} {e}" for e, k in ends.items())
+        if failed:
+            note += "; did not arrive: " + ", ".join(
+                f"seed {r['seed']} ({r['end']} in {r['scenario']} at {r['time']:.0f} s)" for r in failed)
+        notes.append(note + ".")
     lines += [f"| {name} | " + " | ".join(f"{v:.2f}" for v in values) + " |" for name, values in PAPER.items()]
-    failed = [r for r in rows if r["end"] != "success"]
-    if failed:
-        lines += ["", "Episodes that did not arrive: " + ", ".join(
-            f"seed {r['seed']} ({r['end']} in {r['scenario']} at {r['time']:.0f} s)" for r in failed) + "."]
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + ["", "Ends: " + " ".join(notes)]) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--task", default="concatenated", choices=("roundabout", "lane_change", "crossroad",
                                                                    "merge", "concatenated"))
-    parser.add_argument("--policy", default="autopilot", choices=POLICIES)
+    parser.add_argument("--policy", nargs="+", default=["autopilot"], choices=POLICIES,
+                        help="one or more drivers, a row each")
     parser.add_argument("--episodes", type=int_at_least(1), default=200)
     parser.add_argument("--seed", type=int_at_least(0), default=20000, help="seed of the first episode")
     parser.add_argument("--workers", type=int_at_least(0), default=0, metavar="N",
@@ -111,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="run the episodes as Ray tasks ('local' for a private Ray of --workers CPUs)")
     parser.add_argument("--out", default=None, help="write the markdown table here")
     args = parser.parse_args(argv)
-    rows = run(args.task, args.policy, args.episodes, args.seed, args.workers, args.ray)
+    rows = [run(args.task, policy, args.episodes, args.seed, args.workers, args.ray) for policy in args.policy]
     text = markdown(args.task, args.policy, rows, args.seed)
     publish(text, args.out)
     return 0

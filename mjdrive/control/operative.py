@@ -54,8 +54,9 @@ class OperativeConfig(Config):
                                            "m", gt=0.5, le=100.0, length=2)
     curve_footprint: float = param(6.0, "the curve bounds hold this far around the car's centre", "m", gt=0.0,
                                    le=50.0)
-    approach_speed: float = param(3.0, "the speed at a give-way line of the active scenario, whatever the "
-                                  "decision (a later stop stays comfortable)", "m/s", gt=0.0, le=20.0)
+    approach_speed: float = param(3.0, "the speed at a give-way line of the active scenario while the rules "
+                                  "of the road say wait there, whatever the decision (a later stop stays "
+                                  "comfortable)", "m/s", gt=0.0, le=20.0)
     lane_change_accel: float = param(1.5, "lateral acceleration bound of a lane change", "m/s^2", gt=0.1, le=5.0)
     lane_change_jerk: float = param(2.0, "lateral jerk bound of a lane change", "m/s^3", gt=0.1, le=20.0)
     lane_change_heading: float = param(0.2, "a lane change moves across at most at this angle (slow cars take "
@@ -89,6 +90,7 @@ class Situation:
     lane_end: float | None = None  # [m] front bumper to the end of the lane the car is in (off the route's lane)
     crossing: float | None = None  # [m] front bumper to a road user crossing its lane ahead (None: none)
     back_free: bool = True  # the route's own lane has room for the car to come back to it now
+    yielding: bool = False  # the right-of-way rules would have the car wait at the stop point now
 
 
 @dataclass
@@ -227,7 +229,7 @@ class OperativeLevel:
         stop = self._stop_point(situation, decision)
         plan_ahead = status.plan.s[1:] if status.plan is not None else v * self.mpc.times[1:]
         v_ref = self.profile.speed(situation.s + plan_ahead)
-        if situation.stop is not None:  # approach the give-way line slowly enough to stop at it
+        if situation.stop is not None and situation.yielding:  # approach the line slowly enough to stop there
             c = self.config
             room = np.maximum(situation.stop - plan_ahead, 0.0)
             v_ref = np.minimum(v_ref, np.sqrt(c.approach_speed**2 + 2.0 * c.curve_decel * room))

@@ -258,7 +258,8 @@ class _SensorChannels:
 
 _NUMBER_OR_NULL = ["number", "null"]
 _OPERATIVE = {"title": "mjdrive.OperativeStep", "type": "object", "properties": {
-    "t": {"type": "number"}, "decision": {"type": "string"}, "mode": {"type": "string"},
+    "t": {"type": "number"}, "route_s": {"type": "number"}, "route_offset": {"type": "number"},
+    "decision": {"type": "string"}, "mode": {"type": "string"},
     "solver": {"type": "string"}, "throttle": {"type": "number"}, "steer": {"type": "number"},
     "brake": {"type": "number"}, "accel_command": {"type": "number"}, "v_ref": {"type": "number"},
     "stop": {"type": _NUMBER_OR_NULL}, "offset": {"type": "number"}, "target_offset": {"type": "number"},

@@ -12,8 +12,9 @@ the active scenario (the next give-way line of the conflict zones on the route, 
 the leaders (road users going the route's way whose footprint overlaps the band of the lane the car is in, or
 moves to, ahead of it, or will within CUT_IN_TIME; their speed along the route and its change since the last
 period; at merges, the vehicle traffic's zipper puts ahead of the ego), the nearest road user crossing a band
-(a point to stop before, not a leader to follow), the lanes a lane change can reach and the end of a
-neighbour lane the car is in.
+(a point to stop before, not a leader to follow), whether the right-of-way rules would have it wait at the
+stop point now (`Traffic.give_way`: the car then approaches it slowly, whatever the decision), the lanes a
+lane change can reach and the end of a neighbour lane the car is in.
 """
 
 from __future__ import annotations
@@ -41,7 +42,8 @@ LOOK_AHEAD = 100.0  # [m] leaders farther ahead along the route are left out
 LOOK_BEHIND = 15.0  # [m] road users farther behind are left out of the projection
 MAX_LEADER_ACCEL = 8.0  # [m/s^2] bound on a leader's measured acceleration (a respawned slot jumps)
 LANE_CHANGE_ROOM = 70.0  # [m] a lane change starts only where the lane it leads to goes on this far
-MERGE_RANGE = 60.0  # [m] the zipper's leader is asked for within this distance of a merge point
+MERGE_RANGE = 60.0  # [m] the zipper's leader (and whether to yield) is asked for within this distance
+SAME_LINE = 1.5  # [m] traffic's wait point this close to the scenario's stop point is that point
 CUT_IN_TIME = 1.5  # [s] a road user moving across into the ego's lane within this time is a leader already
 ALIGNED = 0.5  # cos of the angle to the route above which a road user goes the route's way (else it crosses)
 OVERLAP = 1.0  # [m] a road user reaching this far back beside the ego's front is still ahead of it
@@ -232,18 +234,21 @@ class RouteTraffic:
         active = scenario != FOLLOW
         leaders, crossing = self.leaders(lanes)
         front = s + self.half_length
+        stop = self.stop_line(s, scenario) if active else None
         merging = np.any((self.merges > front - self.half_length) & (self.merges < front + MERGE_RANGE))
-        if active and scenario != LANE_CHANGE and merging and ego.path is not None:  # merges: the zipper's leader
+        near_line = stop is not None and stop < MERGE_RANGE
+        yielding = False  # the rules would have the ego wait at the stop line now
+        if active and (merging or near_line) and ego.path is not None:
             asked = traffic.give_way(ego)
-            if math.isfinite(asked.leader_gap):
+            if math.isfinite(asked.leader_gap):  # merges: the zipper's leader
                 leaders.append(Leader(max(asked.leader_gap, 0.0), max(asked.leader_speed, 0.0)))
+            yielding = near_line and abs(asked.stop - stop) < SAME_LINE
         target = lanes[-1]
         lane_end = float(self.ends[k]) - (s + self.half_length) if target != 0.0 else None  # never past its end
         room = self.ends[k] - s > LANE_CHANGE_ROOM
         left = target == 0.0 and self.left[k] is not None and room
         right = target > 0.0 or (target == 0.0 and self.right[k] is not None and room)
-        stop = self.stop_line(s, scenario) if active else None
         back_free = target == 0.0 or self.lane_free(0.0, speed)
         return Situation(s, rear_s, rear_lateral, heading_error, speed, operative_decision(decision, scenario),
                          active, stop, tuple(leaders), float(self.lane_width[k]), left, right, lane_end, crossing,
-                         back_free)
+                         back_free, yielding)

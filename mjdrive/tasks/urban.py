@@ -260,7 +260,8 @@ class UrbanTask(DrivingTask):
         self.vehicle.apply(data, throttle, steer, brake)
         self._chassis = None  # the physics moves next
         status = level.status
-        tick = {"t": float(data.time), "decision": status.decision, "mode": status.mode, "solver": status.solver,
+        tick = {"t": float(data.time), "route_s": self.route_s, "route_offset": self.lane_offset,
+                "decision": status.decision, "mode": status.mode, "solver": status.solver,
                 "throttle": throttle, "steer": steer, "brake": brake, "accel_command": status.accel,
                 "v_ref": status.v_ref, "stop": status.stop, "offset": status.offset,
                 "target_offset": status.target_offset, "lateral_error": status.lateral_error,
