@@ -346,8 +346,11 @@ def test_layout_file_refers_to_logged_topics():
     layout = json.loads(LAYOUT.read_text())
     assert {"3D!mjdrive", "Image!mjdrive", "Plot!speed", "Plot!jerk", "Plot!reward"} <= set(layout["configById"])
     topics = PER_STEP | PER_ACTION | ONCE | {"/scene/road_users", "/camera/front", "/camera/front/calibration"}
+    topics |= {"/operative", "/operative/plan", "/scene/plan"}  # an urban task's with decisions
     assert set(layout["configById"]["3D!mjdrive"]["topics"]) <= topics
-    for key in ("Plot!speed", "Plot!jerk", "Plot!reward"):
+    panels = [key for key in layout["configById"] if key.startswith(("Plot!", "StateTransitions!"))]
+    assert {"Plot!operative", "StateTransitions!decision"} <= set(panels)
+    for key in panels:
         for path in layout["configById"][key]["paths"]:
             assert path["value"].split(".")[0] in topics
     assert layout["configById"]["Image!mjdrive"]["imageMode"]["imageTopic"] == "/camera/front"

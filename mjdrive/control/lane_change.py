@@ -18,6 +18,7 @@ from dataclasses import dataclass
 PEAK_RATE = 1.875  # max |d'| of the quintic step per unit width and 1/T
 PEAK_ACCEL = 10.0 / math.sqrt(3.0)  # max |d''| per unit width and 1/T^2
 PEAK_JERK = 60.0  # max |d'''| per unit width and 1/T^3
+SLOW_SPEED = 3.0  # [m/s] a car slower than this (starting from rest) paces its lane change as at this speed
 
 
 @dataclass(frozen=True)
@@ -34,12 +35,13 @@ class LaneOffset:
                speed: float = math.inf, heading_max: float = 1.5) -> LaneOffset:
         """The shortest manoeuvre by `width` [m] whose lateral acceleration stays within `accel_max` [m/s^2],
         jerk within `jerk_max` [m/s^3] and, for a car going `speed` [m/s], the angle it moves across at within
-        `heading_max` [rad] (slow cars take longer)."""
+        `heading_max` [rad] (slow cars take longer, as if at SLOW_SPEED at least: a car starting from rest
+        speeds up while it moves across)."""
         if accel_max <= 0 or jerk_max <= 0 or not 0 < heading_max <= 1.5:
             raise ValueError(f"bounds must be > 0 (heading_max <= 1.5 rad), got {accel_max}, {jerk_max}, "
                              f"{heading_max}")
         w = abs(width)
-        slowest = PEAK_RATE * w / (max(speed, 0.1) * math.tan(heading_max))
+        slowest = PEAK_RATE * w / (max(speed, SLOW_SPEED) * math.tan(heading_max))
         duration = max(math.sqrt(PEAK_ACCEL * w / accel_max), (PEAK_JERK * w / jerk_max) ** (1.0 / 3.0), slowest,
                        1e-3)
         return cls(start, width, duration, t0)
