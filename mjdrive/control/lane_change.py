@@ -18,7 +18,7 @@ from dataclasses import dataclass
 PEAK_RATE = 1.875  # max |d'| of the quintic step per unit width and 1/T
 PEAK_ACCEL = 10.0 / math.sqrt(3.0)  # max |d''| per unit width and 1/T^2
 PEAK_JERK = 60.0  # max |d'''| per unit width and 1/T^3
-SLOW_SPEED = 3.0  # [m/s] a car slower than this (starting from rest) paces its lane change as at this speed
+SLOW_SPEED = 5.0  # [m/s] a car slower than this (starting from rest) paces its lane change as at this speed
 
 
 @dataclass(frozen=True)

@@ -46,17 +46,19 @@ MERGE_RANGE = 60.0  # [m] the zipper's leader (and whether to yield) is asked fo
 SAME_LINE = 1.5  # [m] traffic's wait point this close to the scenario's stop point is that point
 CUT_IN_TIME = 1.5  # [s] a road user moving across into the ego's lane within this time is a leader already
 ALIGNED = 0.5  # cos of the angle to the route above which a road user goes the route's way (else it crosses)
-OVERLAP = 1.0  # [m] a road user reaching this far back beside the ego's front is still ahead of it
+OVERLAP = 1.0  # [m] a road user whose centre is no more than this behind the ego's front is ahead of it
 # Gap acceptance of a lane change (`RouteTraffic.lane_free`)
 LANE_GAP = 4.0  # [m] bumper to bumper, at rest
 LANE_HEADWAY = 0.6  # [s]
 SAFE_DECEL = 2.0  # [m/s^2] the most the ego or its new follower has to brake to match speeds
+CROSSING_TIME = 2.0  # [s] the follower closes in this long before the ego is in its lane
 
 
 class Seen(NamedTuple):
     """The road users near the ego, projected onto the route (`RouteTraffic.observe`), each (K,)."""
 
     ahead: np.ndarray  # [m] the ego's front bumper to their rear (along the route)
+    centre: np.ndarray  # [m] the ego's front bumper to their centre
     behind: np.ndarray  # [m] their front to the ego's rear
     offset: np.ndarray  # [m] their centre's offset from the route (left > 0)
     half_lat: np.ndarray  # [m] half their footprint's extent across the route
@@ -147,8 +149,8 @@ class RouteTraffic:
             self._speed[near], self._generation[near] = along, generation
         half_long = c * half[:, 0] + sn * half[:, 1]  # [m] the footprint's extent along the route
         front = s + self.half_length
-        self.seen = Seen(route_s - half_long - front, s - self.half_length - (route_s + half_long), offset,
-                         sn * half[:, 0] + c * half[:, 1], along, accel,
+        self.seen = Seen(route_s - half_long - front, route_s - front, s - self.half_length - (route_s + half_long),
+                         offset, sn * half[:, 0] + c * half[:, 1], along, accel,
                          traffic.speeds()[near] * np.sin(rel_yaw), np.cos(rel_yaw) > ALIGNED,
                          traffic.indicators()[near])
 
@@ -164,7 +166,7 @@ class RouteTraffic:
         the route, now, or moving into it within CUT_IN_TIME, or signalling a lane change into it; the gap [m] to
         the nearest one crossing or coming the other way in a band now, None if none)."""
         seen = self.seen
-        near = (seen.ahead > -OVERLAP) & (seen.ahead < LOOK_AHEAD)
+        near = (seen.centre > -OVERLAP) & (seen.ahead < LOOK_AHEAD)
         out, crossing = [], None
         target = seen.offset + seen.indicator * self.lane_width[self.index]  # where a signalled change goes
         for centre in dict.fromkeys(centres):  # each lane once
@@ -212,10 +214,11 @@ class RouteTraffic:
         """Whether the lane centred `centre` [m] from the route takes the ego at `speed` [m/s] now (gap acceptance
         of a lane change, MOBIL's safety criterion with a headway): the ego can keep LANE_GAP plus LANE_HEADWAY of
         its speed behind the road user ahead braking at most SAFE_DECEL to its speed, and the road user behind
-        likewise behind the ego."""
+        likewise behind the ego, after closing in for CROSSING_TIME while the ego moves across."""
         ahead, v_ahead, behind, v_behind = self.lane_gaps(centre)
+        closing = max(v_behind - speed, 0.0)  # [m/s]
         front = LANE_GAP + LANE_HEADWAY * speed + max(speed - v_ahead, 0.0) ** 2 / (2.0 * SAFE_DECEL)
-        rear = LANE_GAP + LANE_HEADWAY * v_behind + max(v_behind - speed, 0.0) ** 2 / (2.0 * SAFE_DECEL)
+        rear = LANE_GAP + LANE_HEADWAY * v_behind + closing * CROSSING_TIME + closing**2 / (2.0 * SAFE_DECEL)
         return ahead >= front and behind >= rear
 
     def lane_length_left(self, s: float) -> float:
