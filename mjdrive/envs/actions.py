@@ -18,14 +18,40 @@ ROUNDABOUT7 = np.array([
     [0.3, -0.5, 0.5], [0.3, 0.5, 0.0], [0.0, 0.0, 0.5],
 ])
 ACTION_TABLES = {"table1": TABLE1, "table2": TABLE2, "roundabout7": ROUNDABOUT7}
+INDEX_DTYPE = np.int64  # the dtype of gymnasium's Discrete spaces (an index must cast to it safely)
+
+
+def action_index(action, n: int, action_set: str) -> int:
+    """The index in 0..n-1 that a discrete action set's `action` names, accepting exactly what gymnasium's
+    `Discrete(n).contains` accepts: a Python int (bool included, as gymnasium takes it), a numpy integer scalar
+    or a 0-d integer array whose dtype casts safely to int64. Anything else (a float, even a whole one, a
+    string, a (1,) array, np.bool_) and an index out of range raise ValueError naming `action_set`: a
+    policy that emits floats must not drive with a truncated index."""
+    if isinstance(action, int):
+        index = int(action)  # a bool is 0 or 1, never a numpy mask
+    elif (isinstance(action, (np.generic, np.ndarray)) and np.issubdtype(action.dtype, np.integer)
+          and action.shape == () and np.can_cast(action.dtype, INDEX_DTYPE)):
+        index = int(action)
+    else:
+        kind = type(action).__name__
+        if isinstance(action, np.generic):
+            kind = f"numpy {action.dtype}"
+        elif isinstance(action, np.ndarray):
+            kind = f"array of dtype {action.dtype}, shape {action.shape}"
+        raise ValueError(f"action set {action_set!r}: an action is an integer index in 0..{n - 1} (a Python or "
+                         f"numpy integer, or a 0-d integer array), got {action!r} ({kind})")
+    if not 0 <= index < n:
+        raise ValueError(f"action set {action_set!r}: action index must be in 0..{n - 1}, got {index}")
+    return index
 
 
 class DiscreteActions(gym.ActionWrapper):
     """Maps a discrete action index to a row (throttle, steer, brake) of `table`."""
 
-    def __init__(self, env: gym.Env, table: np.ndarray):
+    def __init__(self, env: gym.Env, table: np.ndarray, name: str = "discrete"):
         super().__init__(env)
         self.table = np.asarray(table, np.float64)
+        self.name = name  # the action set's name, in errors
         self.action_space = gym.spaces.Discrete(len(self.table))
         self._last_steer = 0.0
 
@@ -34,10 +60,7 @@ class DiscreteActions(gym.ActionWrapper):
         return self.env.reset(**kwargs)
 
     def action(self, action) -> np.ndarray:
-        index = int(action)
-        if not 0 <= index < len(self.table):
-            raise ValueError(f"action index must be in [0, {len(self.table) - 1}], got {action!r}")
-        command = self.table[index].copy()
+        command = self.table[action_index(action, len(self.table), self.name)].copy()
         if np.isnan(command[1]):
             command[1] = self._last_steer
         self._last_steer = command[1]
@@ -75,4 +98,4 @@ def wrap_actions(env: gym.Env, actions: str) -> gym.Env:
         return PedalActions(env)
     if actions not in ACTION_TABLES:
         raise ValueError(f"unknown action set {actions!r}; valid: {', '.join(ACTION_SETS)}")
-    return DiscreteActions(env, ACTION_TABLES[actions])
+    return DiscreteActions(env, ACTION_TABLES[actions], actions)
