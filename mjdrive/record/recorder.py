@@ -69,7 +69,7 @@ from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 
 from mjdrive.comfort import ComfortMeter
 from mjdrive.record import proto, scene
-from mjdrive.record.summary import comfort_fields
+from mjdrive.record.summary import COMFORT_FIELDS, comfort_fields
 from mjdrive.sensors import SENSORS
 
 FORMAT_VERSION = 1
@@ -161,8 +161,32 @@ def package_versions() -> dict[str, str]:
     return versions
 
 
-def _json_schema(title: str, properties: dict[str, str]) -> dict:
-    return {"title": title, "type": "object", "properties": {k: {"type": t} for k, t in properties.items()}}
+JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
+
+
+def _json_schema(title: str, properties: dict[str, str | tuple[str, ...] | dict], description: str = "") -> dict:
+    """The JSON schema of a JSON channel's messages: an object with exactly `properties`, every one required.
+    A property is a JSON type name ("number"), a tuple of them (("number", "null"): nullable) or a whole
+    property schema (a dict, e.g. with a description giving its unit). A key sent but not declared here, or a
+    value of another type, fails tests/test_record_schemas.py, which validates every JSON message of an
+    episode of every task."""
+    def prop(spec: str | tuple[str, ...] | dict) -> dict:
+        if isinstance(spec, dict):
+            return spec
+        return {"type": list(spec) if isinstance(spec, tuple) else spec}
+
+    schema = {"$schema": JSON_SCHEMA_DIALECT, "title": title, "type": "object",
+              "properties": {key: prop(spec) for key, spec in properties.items()},
+              "required": list(properties), "additionalProperties": False}
+    if description:
+        schema["description"] = description
+    return schema
+
+
+def _number(unit: str, description: str = "", nullable: bool = False) -> dict:
+    """A number property with its unit (and what it is)."""
+    return {"type": ["number", "null"] if nullable else "number",
+            "description": " ".join(part for part in (description, f"[{unit}]" if unit else "") if part)}
 
 
 def _jsonable(value: Any) -> Any:
@@ -183,13 +207,45 @@ def _jsonable(value: Any) -> Any:
 
 
 _EGO_STATE = _json_schema("mjdrive.EgoState", {
-    "t": "number", "x": "number", "y": "number", "yaw": "number", "speed": "number", "yaw_rate": "number",
-    "accel_long": "number", "accel_lat": "number", "jerk_long": "number", "jerk_lat": "number", "jerk": "number",
-    "steering_angle": "number", "throttle": "number", "steer": "number", "brake": "number",
-    "lane_offset": "number", "heading_error": "number", "scenario": "string"})
-_ACTION = _json_schema("mjdrive.Action", {"throttle": "number", "steer": "number", "brake": "number"})
-_REWARD = _json_schema("mjdrive.Reward", {"reward": "number", "return": "number", "terms": "object"})
-_SUMMARY = _json_schema("mjdrive.EpisodeSummary", {"steps": "integer", "return": "number"})
+    "t": _number("s", "simulated time"), "x": _number("m", "chassis position, world frame"), "y": _number("m"),
+    "yaw": _number("rad", "heading, world frame"), "speed": _number("m/s", "signed forward speed"),
+    "yaw_rate": _number("rad/s"),
+    "accel_long": _number("m/s^2", "IMU acceleration, forward (instantaneous)"),
+    "accel_lat": _number("m/s^2", "IMU acceleration, leftward (instantaneous)"),
+    "jerk_long": _number("m/s^3", "finite difference of accel_long over the control step"),
+    "jerk_lat": _number("m/s^3", "finite difference of accel_lat over the control step"),
+    "jerk": _number("m/s^3", "hypot(jerk_long, jerk_lat)"),
+    "steering_angle": _number("rad", "front wheels' steering angle"),
+    "throttle": _number("", "command applied, 0..1"), "steer": _number("", "command applied, -1..1 (+ = left)"),
+    "brake": _number("", "command applied, 0..1"),
+    "lane_offset": _number("m", "lateral offset from the lane's or route's centre line (+ = left)"),
+    "heading_error": _number("rad", "heading minus the lane's or route's heading"),
+    "scenario": {"type": ["string", "null"], "description": "urban tasks: the active scenario; null on others"},
+}, "The ego's state after every step (and after the reset).")
+_ACTION = _json_schema("mjdrive.Action", {
+    "throttle": _number("", "0..1"), "steer": _number("", "-1..1 (+ = left)"), "brake": _number("", "0..1"),
+}, "The (throttle, steer, brake) command the task applied at a step, exact float64.")
+_REWARD = _json_schema("mjdrive.Reward", {
+    "reward": _number("", "the step's reward (the task's units)"), "return": _number("", "the sum so far"),
+    "terms": {"type": "object", "additionalProperties": {"type": "number"},
+              "description": "the reward's terms by name (`task.reward_terms`; they vary by task)"},
+}, "The reward of every step with its terms.")
+_SUMMARY = _json_schema("mjdrive.EpisodeSummary", {
+    "task": {"type": "string", "description": "DOMAIN/TASK"},
+    "episode": {"type": "integer", "description": "the recorder's episode index"},
+    "seed": {"type": ["integer", "null"], "description": "the reset seed (null: none)"},
+    "steps": {"type": "integer", "description": "control steps"},
+    "return": _number("", "the sum of the rewards"),
+    "terminated": {"type": "boolean"}, "truncated": {"type": "boolean"},
+    "interrupted": {"type": "boolean", "description": "stopped before the env ended the episode"},
+    "sim_time": _number("s", "simulated time of the last step"),
+    "mean_speed_m_s": _number("m/s", "distance / time where the task says them, else the mean logged speed"),
+    **{row: _number("m/s^3" if row.endswith("m_s3") else "m/s^2", "comfort metric (docs/summary.md); null: too "
+                    "short to filter", nullable=True) for row in COMFORT_FIELDS.values()},
+    "info": {"type": "object", "description": "the task's `info` at the episode's end (its keys per task: "
+             "docs/waypoints.md, roundabout.md, urban.md); NaN and inf as null, arrays as lists",
+             "additionalProperties": {"type": ["number", "integer", "boolean", "string", "null", "array", "object"]}},
+}, "The episode's summary, once at its end; also the MCAP metadata record `summary`.")
 
 
 class _Channels:
