@@ -544,9 +544,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# the optional packages and the extra of mjdrive that installs each (pyproject.toml)
+OPTIONAL_MODULES = {"matplotlib": "plot", "highway_env": "bench", "ray": "ray", "torch": "learn", "rsl_rl": "learn",
+                    "tensorboard": "learn", "numba": "fast"}
+
+
 def run_reporting_errors(prog: str, func: Callable[[], int | None]) -> int:
     """`func()`'s exit status; a user's mistake (a bad name, number, keyword, path or file: ValueError, OSError)
-    prints one line `PROG: error: ...` and gives status 2 (MJDRIVE_DEBUG=1: the traceback instead), Ctrl-C 130.
+    prints one line `PROG: error: ...` and gives status 2 (MJDRIVE_DEBUG=1: the traceback instead), Ctrl-C 130;
+    so does a missing optional package (OPTIONAL_MODULES), naming the extra that installs it.
     The `mjdrive` subcommands and the study tools (`python -m tools.NAME`) run through it."""
     try:
         return func() or 0
@@ -555,6 +561,14 @@ def run_reporting_errors(prog: str, func: Callable[[], int | None]) -> int:
             raise
         message = " ".join(str(error).split()) or type(error).__name__
         print(f"{prog}: error: {message}", file=sys.stderr)
+        return 2
+    except ModuleNotFoundError as error:
+        package = (error.name or "").split(".")[0]
+        if package not in OPTIONAL_MODULES or os.environ.get("MJDRIVE_DEBUG"):
+            raise
+        print(f"{prog}: error: this needs {package}, which is not installed: pip install "
+              f"'mjdrive[{OPTIONAL_MODULES[package]}]' (or pip install -e '.[{OPTIONAL_MODULES[package]}]' in a "
+              "clone)", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
