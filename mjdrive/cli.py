@@ -282,17 +282,22 @@ def cmd_drive(args) -> int:
 
         env = RecordEpisodes(env, out, record_options(args))
         announce_live(env)
-    from mjdrive.drive import HELP, drive
+    from mjdrive.drive import HELP, StopRequests, drive
 
     note(f"mjdrive drive: {HELP}")
     start = time.perf_counter()
-    try:
-        rows = drive(env, episodes=args.episodes, seed=args.seed, task_name=args.task, realtime=args.realtime,
-                     on_episode=lambda row: print(json.dumps(row), flush=True))
-    finally:
-        env.close()
-    summary = document("drive", args.task, task_kwargs, "keyboard", rows, wall_s=round(time.perf_counter() - start, 1))
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    stop = StopRequests()
+    with stop.installed():  # SIGINT, SIGTERM, a window closed from outside: the log and summary still get written
+        try:
+            rows = drive(env, episodes=args.episodes, seed=args.seed, task_name=args.task, realtime=args.realtime,
+                         on_episode=lambda row: print(json.dumps(row), flush=True), stop=stop)
+        finally:
+            env.close()
+        summary = document("drive", args.task, task_kwargs, "keyboard", rows,
+                           wall_s=round(time.perf_counter() - start, 1))
+        (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    if stop.requested:
+        note(f"mjdrive drive: stopped: {stop.reason}")
     print(f"wrote {out}/ ({'MCAP logs, ' if args.record else ''}summary.json)")
     return 0
 

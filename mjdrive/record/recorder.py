@@ -70,6 +70,7 @@ from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 from mjdrive.comfort import ComfortMeter
 from mjdrive.record import proto, scene
 from mjdrive.record.summary import COMFORT_FIELDS, comfort_fields
+from mjdrive.run_folder import lock_part
 from mjdrive.sensors import SENSORS
 
 FORMAT_VERSION = 1
@@ -335,6 +336,7 @@ class EpisodeRecorder:
         self._channels = _Channels(self._context)
         self._writer = None
         self._part: Path | None = None
+        self._part_lock: int | None = None  # an open descriptor of the .part holding its lock (`run_folder`)
         self._road_cache: tuple[Any, bytes] | None = None  # (road map, encoded /scene/road)
         self._model_cache: tuple[Any, dict] | None = None  # (model, per-model constants)
         self._cubes = proto.CubeListEncoder()
@@ -391,9 +393,12 @@ class EpisodeRecorder:
             if final.exists():
                 continue
             try:
-                os.close(os.open(part, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644))
+                descriptor = os.open(part, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
             except FileExistsError:
                 continue
+            # held until the file is published: while it is, the .part belongs to a live writer; once this
+            # process ends (even killed) the lock is gone and the next run may remove the file
+            self._part_lock = lock_part(descriptor)
             return part
         raise RuntimeError(f"no free file name for episode {self.episode} in {self.out_dir}")
 
@@ -521,6 +526,9 @@ class EpisodeRecorder:
         self._writer = None
         final = self._publish(self._part)
         self._part = None
+        if self._part_lock is not None:
+            os.close(self._part_lock)
+            self._part_lock = None
         self.paths.append(final)
         return final
 
