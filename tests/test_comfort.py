@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -263,6 +264,8 @@ def test_the_filter_attenuates_a_jerk_oscillation_as_docs_summary_states(f, dt, 
     assert (gain, gain_fd) == pytest.approx(_filter_gains(f, dt), abs=2e-3)
     assert (gain, gain_fd) == pytest.approx((savgol, differences), abs=1e-3)
     assert np.abs(jerk_lat).max() < 1e-9
+    docs = " ".join((Path(__file__).resolve().parents[1] / "docs" / "summary.md").read_text().split())
+    assert "passes 63% of a 1 Hz jerk oscillation's amplitude" in docs and "97% of a 1 Hz oscillation" in docs
 
 
 def test_unfiltered_jerk_of_constant_jerk_and_circles():
