@@ -17,9 +17,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from mjdrive import suite
 from mjdrive.agents.algorithms import agent_class
 from mjdrive.agents.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
-from mjdrive.agents.env_factory import make_training_env
+from mjdrive.agents.env_factory import make_training_env, training_tasks
 from mjdrive.agents.replay import ReplayBuffer
 from mjdrive.agents.run_log import Run
 from mjdrive.agents.seeding import set_seed
@@ -80,6 +81,19 @@ def load_initial_state(path: str | Path, config: dict) -> tuple[dict, int, bool]
     return payload["state"], experience, True
 
 
+def check_task_kwargs(config: dict) -> None:
+    """The config's task keywords, checked against every task it trains on: ValueError in one line naming a bad
+    one (`actions`, the action set, is the config's own key, not a task keyword)."""
+    kwargs = dict(config.get("task_kwargs") or {})
+    if "actions" in kwargs:
+        raise ValueError(f"'actions' is not a task keyword: the action set is the config's `actions` (here "
+                         f"{config.get('actions', 'continuous')!r}); set it with --set actions=NAME")
+    domain, tasks = training_tasks(config)
+    for task in tasks:
+        config_class, defaults = suite.task_config(domain, task)
+        config_class.from_dict(kwargs, defaults, where=f"{domain}/{task}")
+
+
 def train(config: dict, out: str | Path, resume: bool = False, progress: bool = True) -> Path:
     """Train the learner `config["algo"]` for `config["steps"]` env steps; returns the policy.pt path.
 
@@ -95,6 +109,7 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
     config = copy.deepcopy(config)
     algo = config.get("algo")
     agent_class(algo)  # validates the name early
+    check_task_kwargs(config)  # and the task keywords, before the run folder is written
     out = Path(out)
     torch.set_num_threads(int(config.get("torch_threads", 1)))
     seed = int(config.get("seed", 0))

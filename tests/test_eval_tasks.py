@@ -119,3 +119,15 @@ def test_unfinished_logs_of_an_interrupted_run_never_block_the_next_one_a_live_o
     assert cli.main(["run", "--task", "waypoints/straight", "--task-kwarg", "time_limit=1", "--no-video",
                      "--out", str(other)]) == 0  # its writer gone: removed, the run goes ahead
     assert not live.exists() and "note: removed 1 unfinished log" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("kwarg, message", [
+    ("actions=pedal", "'actions' is not a task keyword: the action set is the config's `actions` (here 'continuous')"),
+    ("time_limt=3", "unknown keyword 'time_limt' for waypoints/straight (did you mean 'time_limit'?)"),
+])
+def test_train_refuses_a_bad_task_keyword_before_writing_its_run_folder(kwarg, message, tmp_path, capsys):
+    assert cli.main(["train", "--algo", "ppo", "--steps", "100", "--task-kwarg", kwarg, "--out",
+                     str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("mjdrive train: error: ") and message in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "run").exists()

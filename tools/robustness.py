@@ -445,6 +445,7 @@ def cases() -> list[Case]:
         c("mjdrive eval", "mjdrive eval --checkpoint waypoints_policy.pt --task urban/concatenated", "cannot read that of urban/concatenated: no 'heading_error'", _cli("eval", "--checkpoint", "waypoints_policy.pt", "--task", "urban/concatenated", "--out", "never")),
         c("mjdrive eval", "mjdrive eval --checkpoint roundabout_policy.pt --task urban/roundabout", "with the task keyword exits=[1], which urban/roundabout does not take", _cli("eval", "--checkpoint", "roundabout_policy.pt", "--task", "urban/roundabout", "--out", "never")),
         c("mjdrive eval", "mjdrive eval --checkpoint waypoints_policy.pt --task-kwarg actions=pedal", "'actions' is not a task keyword", _cli("eval", "--checkpoint", "waypoints_policy.pt", "--task-kwarg", "actions=pedal", "--out", "never")),
+        c("mjdrive train", "mjdrive train --task-kwarg actions=pedal", "'actions' is not a task keyword: the action set is the config's `actions`", _cli("train", "--task-kwarg", "actions=pedal", "--out", "never")),
         c("mjdrive eval", "mjdrive eval --checkpoint waypoints_policy.pt --out busy_ev (a running evaluation writes busy_ev/)", "is in use: a running process is writing", _holding_live_part("busy_ev", _cli("eval", "--checkpoint", "waypoints_policy.pt", "--episodes", "1", "--out", "busy_ev"))),
     ]  # fmt: skip
     out += handled_cases()
