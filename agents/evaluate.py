@@ -178,13 +178,18 @@ class EpisodeRunner:
         if not spec.deterministic:
             torch.manual_seed(seed)  # sampled actions are reproducible per episode too
         total, steps = 0.0, 0
-        while True:
-            action = self.agent.act({key: value[None] for key, value in obs.items()}, spec.deterministic)[0]
-            obs, reward, terminated, truncated, info = env.step(action)
-            total += reward
-            steps += 1
-            if terminated or truncated:
-                break
+        try:
+            while True:
+                action = self.agent.act({key: value[None] for key, value in obs.items()}, spec.deterministic)[0]
+                obs, reward, terminated, truncated, info = env.step(action)
+                total += reward
+                steps += 1
+                if terminated or truncated:
+                    break
+        except BaseException:  # an error or Ctrl-C mid-episode: its log stays unfinished, never blocking a rerun
+            if hasattr(env, "recorder"):
+                env.recorder.abandon()
+            raise
         if spec.record_dir is not None and self.live is None:
             env.recorder.close()
         log = Path(info["record_path"]).name if "record_path" in info else None

@@ -440,3 +440,26 @@ def test_batched_env_records_each_copy_apart_and_every_file_replays(tmp_path):
         for path in files[:2]:
             result = replay(path)
             assert result.complete and result.mismatch_step is None and result.steps == 10, result
+
+
+def test_a_part_is_locked_while_written_and_abandoned_or_killed_ones_are_removed_by_the_next_run(tmp_path, capsys):
+    """The recorder holds a lock on each .part while it writes; `abandon()` (an error mid-episode) leaves the
+    file readable and unlocked, and a fresh run folder there removes it (the killed writer's case is
+    tests/test_eval_tasks.py's)."""
+    from mjdrive.run_folder import fresh_folder, part_is_live
+
+    env = RecordEpisodes(make_env("waypoints", "straight", **TASK_KWARGS), tmp_path)
+    env.reset(seed=3)
+    for _ in range(5):
+        env.step(np.array([0.5, 0.0, 0.0]))
+    part = env.recorder._part
+    assert part.name.endswith(".mcap.part") and part_is_live(part)
+    with pytest.raises(ValueError, match="is in use: a running process is writing"):
+        fresh_folder(tmp_path, overwrite=True)
+    assert env.recorder.abandon() == part and part.exists() and not part_is_live(part)
+    assert not read_episode(part).complete
+    env.close()  # nothing open any more: no file is written
+    assert [p.name for p in tmp_path.iterdir()] == [part.name]
+    fresh_folder(tmp_path, overwrite=False)
+    assert list(tmp_path.iterdir()) == []
+    assert "removed 1 unfinished log" in capsys.readouterr().err

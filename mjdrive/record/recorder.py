@@ -539,6 +539,19 @@ class EpisodeRecorder:
         metrics = self._comfort.metrics(dt) if dt > 0 else None
         return comfort_fields({} if metrics is None else dataclasses.asdict(metrics))
 
+    def abandon(self) -> Path | None:
+        """Stop writing the open episode without finishing it (after an error mid-episode): its `.part` stays,
+        readable up to its last chunk, unlocked, so the next run in the folder removes it; returns its path."""
+        part = self._part
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+        if self._part_lock is not None:
+            os.close(self._part_lock)
+            self._part_lock = None
+        self._part = None
+        return part
+
     def close(self) -> None:
         """End an open episode (interrupted) and free the camera renderer."""
         self.end(interrupted=True)
