@@ -202,7 +202,9 @@ def read_episode(path: str | Path, topics: set[str] | None = None) -> Episode:
                         take(item)
                 elif isinstance(record, DataEnd):
                     data_end = True
-                elif not data_end:  # the summary section repeats the schemas and channels
+                elif data_end or (skipping and isinstance(record, Message)):
+                    continue  # the summary section repeats schemas and channels; after a bad chunk no message is kept
+                else:
                     take(record)
         except CRCValidationError as exc:  # raised at DataEnd: a byte outside the chunks changed (or in a chunk)
             data_end = True
