@@ -95,6 +95,7 @@ class _XErrorEvent(ctypes.Structure):
 
 
 _X_ERROR_HANDLER = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.POINTER(_XErrorEvent))
+_X_HANDLERS_SET: list = []  # every handler given to Xlib, kept alive as long as the process (Xlib may call it late)
 
 
 class StopRequests:
@@ -106,7 +107,7 @@ class StopRequests:
 
     def __init__(self):
         self.reason: str | None = None  # what asked to stop, for messages
-        self._x_handler = _X_ERROR_HANDLER(self._on_x_error)  # kept: Xlib holds a pointer to it
+        self._x_handler = _X_ERROR_HANDLER(self._on_x_error)
 
     @property
     def requested(self) -> bool:
@@ -134,6 +135,7 @@ class StopRequests:
             previous = {sig: signal.signal(sig, self._on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
         name = ctypes.util.find_library("X11")
         if name is not None:
+            _X_HANDLERS_SET.append(self._x_handler)
             ctypes.CDLL(name).XSetErrorHandler(self._x_handler)
         try:
             yield self
