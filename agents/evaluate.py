@@ -96,13 +96,13 @@ def plan_evaluation(checkpoint: str | Path, task: str | None = None,
     config_class.from_dict(kwargs, defaults, where=task)  # a bad keyword of the user's: its one-line error
     if task != trained_task or user:  # another env than the one the policy was built for: can it read it?
         trained_env = make_env(*suite.split_task(trained_task), actions=actions, **carried)
-        env = make_env(domain, name, actions=actions, **kwargs)
         try:
+            env = make_env(domain, name, actions=actions, **kwargs)
             problems = observation_mismatch(trained_env.observation_space, env.observation_space)
             if env.action_space != trained_env.action_space:
-                problems.append(f"its actions are {env.action_space}, not {trained_env.action_space}")
-        finally:
+                problems.append(f"its action space is {env.action_space}, not {trained_env.action_space}")
             env.close()
+        finally:
             trained_env.close()
         if problems:
             given = f"{task} with {', '.join(f'{k}={v!r}' for k, v in user.items())}" if user else task
