@@ -109,7 +109,6 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
     config = copy.deepcopy(config)
     algo = config.get("algo")
     agent_class(algo)  # validates the name early
-    check_task_kwargs(config)  # and the task keywords, before the run folder is written
     out = Path(out)
     torch.set_num_threads(int(config.get("torch_threads", 1)))
     seed = int(config.get("seed", 0))
@@ -217,6 +216,7 @@ def train_command(args) -> int:
     if args.record_dir:
         config["record_dir"] = args.record_dir  # one MCAP log per training episode, per env copy
     out = args.out or f"runs/{config['algo']}_{config['task'].replace('/', '_')}_seed{config.get('seed', 0)}"
+    check_task_kwargs(config)  # a bad task keyword: one line, before the run folder is written
 
     def stop(signum, frame):  # SIGTERM (kill, a cluster's time limit) stops like Ctrl-C: state saved, see train
         raise KeyboardInterrupt
