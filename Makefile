@@ -21,11 +21,13 @@ $(STAMP)/system:
 # torch first and pinned, then the project. TORCH_INDEX picks the wheel index torch comes from: empty (the
 # default) uses pip's own configuration, which resolves to CUDA builds (GBs) where no local CPU wheel exists;
 # `make run TORCH_INDEX=https://download.pytorch.org/whl/cpu` gets PyTorch's CPU-only build anywhere.
-# The ray extra too: the test suite runs the Ray backends on a local Ray (tests/test_parallel.py).
+# The ray extra too: the test suite runs the Ray backends on a local Ray (tests/test_parallel.py); plot
+# (matplotlib) for the figure tools (tools.urban_figures, tools.plot_curves, tools.draw_map). Not bench
+# (highway-env): only the roundabout speed comparison needs it.
 TORCH_INDEX ?=
 $(STAMP)/python: pyproject.toml $(STAMP)/system
 	$(PIP) install -q torch==2.13.0 $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX))
-	$(PIP) install -q -e ".[learn,dev,ray,fast]"
+	$(PIP) install -q -e ".[learn,dev,ray,fast,plot]"
 	$(PYTHON) -m mjdrive.envs.compile_kernels  # compile the numba kernels once into the user's cache
 	@touch $@
 

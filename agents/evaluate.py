@@ -2,17 +2,25 @@
 
 waypoints (study 004 §4.1): route completion, mean and per episode (the study: straight route, 50 episodes,
 20 s, greedy). roundabout (study 000 Table 3): avg reward, avg time [s], avg speed [m/s], avg distance [m],
-avg steps, success %, collision %.
+avg steps, success %, collision %. urban (study 002): success %, collision %, reward, time, speed, distance
+(no route completion: the urban tasks have none).
+
+Before any episode runs or any file is written, `plan_evaluation` checks that the checkpoint can run on the
+task: the task keywords it was trained with must be ones the task takes, and the task's observation must hold
+every entry the policy reads, with the same shape and dtype.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
+
+from mjdrive import suite
 from mjdrive.agents.algorithms import agent_from_payload
 from mjdrive.agents.checkpoints import load_checkpoint
 from mjdrive.agents.ensemble import describe, ensemble_agent
@@ -35,6 +43,72 @@ def load_agent(path: str | Path) -> tuple[Any, dict]:
     if payload["algo"] == "ensemble":
         return ensemble_agent(payload, path), payload
     return agent_from_payload(payload, str(path)), payload
+
+
+@dataclass(frozen=True)
+class EvalPlan:
+    """A checkpoint's policy, loaded and checked against the task it is to run on (`plan_evaluation`)."""
+
+    checkpoint: str
+    agent: Any
+    payload: dict
+    task: str  # DOMAIN/TASK
+    task_kwargs: dict[str, Any]  # the checkpoint's task keywords, then the user's
+    actions: str  # the checkpoint's action set
+
+
+def observation_mismatch(trained: gym.spaces.Dict, given: gym.spaces.Dict) -> list[str]:
+    """What keeps a policy that reads `trained` observations from reading `given` ones: each entry it reads
+    that is missing, or of another shape or dtype ([] when it can read them; extra entries are ignored)."""
+    problems = [f"no {key!r}" for key in trained.spaces if key not in given.spaces]
+    for key, space in trained.spaces.items():
+        other = given.spaces.get(key)
+        if other is not None and (other.shape, other.dtype) != (space.shape, space.dtype):
+            problems.append(f"{key!r} is {other.shape} {other.dtype}, not {space.shape} {space.dtype}")
+    return problems
+
+
+def plan_evaluation(checkpoint: str | Path, task: str | None = None,
+                    task_kwargs: dict[str, Any] | None = None) -> EvalPlan:
+    """Load `checkpoint` and check, before anything runs or is written, that it can run on `task` (default:
+    the one it was trained on) with its own task keywords and then `task_kwargs`: ValueError in one line
+    naming the mismatch (a keyword the task does not take, an observation the policy cannot read, `actions`
+    given as a task keyword)."""
+    agent, payload = load_agent(checkpoint)
+    config = payload["config"]
+    trained_task, actions = config["task"], config.get("actions", "continuous")
+    task = task or trained_task
+    user = dict(task_kwargs or {})
+    if "actions" in user:
+        raise ValueError(f"'actions' is not a task keyword: the action set is the checkpoint's own "
+                         f"({checkpoint} acts with {actions!r}); drop --task-kwarg actions=...")
+    carried = dict(config.get("task_kwargs") or {})
+    domain, name = suite.split_task(task)
+    config_class, defaults = suite.task_config(domain, name)
+    accepted = {f.name for f in fields(config_class)}
+    foreign = {key: value for key, value in carried.items() if key not in accepted}
+    if foreign:
+        shown = ", ".join(f"{key}={value!r}" for key, value in foreign.items())
+        raise ValueError(f"checkpoint {checkpoint} was trained on {trained_task} with the task keyword"
+                         f"{'s' if len(foreign) > 1 else ''} {shown}, which {task} does not take: it cannot be "
+                         f"evaluated there (its keywords: `mjdrive list --kwargs {task}`)")
+    kwargs = {**carried, **user}
+    config_class.from_dict(kwargs, defaults, where=task)  # a bad keyword of the user's: its one-line error
+    if task != trained_task or user:  # another env than the one the policy was built for: can it read it?
+        trained_env = make_env(*suite.split_task(trained_task), actions=actions, **carried)
+        try:
+            env = make_env(domain, name, actions=actions, **kwargs)
+            problems = observation_mismatch(trained_env.observation_space, env.observation_space)
+            if env.action_space != trained_env.action_space:
+                problems.append(f"its action space is {env.action_space}, not {trained_env.action_space}")
+            env.close()
+        finally:
+            trained_env.close()
+        if problems:
+            given = f"{task} with {', '.join(f'{k}={v!r}' for k, v in user.items())}" if user else task
+            raise ValueError(f"checkpoint {checkpoint} reads the observation of {trained_task} and cannot read "
+                             f"that of {given}: {'; '.join(problems[:4])}{'; ...' if len(problems) > 4 else ''}")
+    return EvalPlan(str(checkpoint), agent, payload, task, kwargs, actions)
 
 
 @dataclass(frozen=True)
@@ -104,13 +178,18 @@ class EpisodeRunner:
         if not spec.deterministic:
             torch.manual_seed(seed)  # sampled actions are reproducible per episode too
         total, steps = 0.0, 0
-        while True:
-            action = self.agent.act({key: value[None] for key, value in obs.items()}, spec.deterministic)[0]
-            obs, reward, terminated, truncated, info = env.step(action)
-            total += reward
-            steps += 1
-            if terminated or truncated:
-                break
+        try:
+            while True:
+                action = self.agent.act({key: value[None] for key, value in obs.items()}, spec.deterministic)[0]
+                obs, reward, terminated, truncated, info = env.step(action)
+                total += reward
+                steps += 1
+                if terminated or truncated:
+                    break
+        except BaseException:  # an error or Ctrl-C mid-episode: its log stays unfinished, never blocking a rerun
+            if hasattr(env, "recorder"):
+                env.recorder.abandon()
+            raise
         if spec.record_dir is not None and self.live is None:
             env.recorder.close()
         log = Path(info["record_path"]).name if "record_path" in info else None
@@ -144,25 +223,25 @@ def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None
              task_kwargs: dict | None = None, deterministic: bool = True,
              record_dir: str | Path | None = None, progress: str | None = None, workers: int = 0,
              ray: str | None = None, on_episode: Callable[[dict], None] | None = None,
-             live: tuple[str, int] | None = None) -> dict[str, Any]:
+             live: tuple[str, int] | None = None, plan: EvalPlan | None = None) -> dict[str, Any]:
     """Roll out the policy for `episodes` episodes (seeds seed, seed+1, ...); returns rows and a summary.
     With `record_dir`, every episode is also written there as an MCAP log (`mjdrive replay`/`logs`).
     `progress`: the label of a tqdm bar over the episodes (on stderr); None: no bar.
     `workers=N` runs the episodes in N worker processes, `ray` (an address, "local") as Ray tasks
     (`mjdrive.envs.fanout`); rows, summary and logs are the same for any N and either backend (episodes of a
     worker that died run again elsewhere). `on_episode(row)` is called as each episode ends. `live=(host,
-    port)` streams the logs' channels to Foxglove while the episodes run (in this process only)."""
+    port)` streams the logs' channels to Foxglove while the episodes run (in this process only). `plan`:
+    `plan_evaluation(checkpoint, task, task_kwargs)` if the caller made it already (else it is made here)."""
     from mjdrive.envs.fanout import fan_out
     from mjdrive.progress import Progress
 
-    agent, payload = load_agent(checkpoint)
+    plan = plan or plan_evaluation(checkpoint, task, task_kwargs)
+    agent, payload, task, kwargs = plan.agent, plan.payload, plan.task, plan.task_kwargs
     config = payload["config"]
-    task = task or config["task"]
-    kwargs = {**config.get("task_kwargs", {}), **(task_kwargs or {})}
     local = not workers and ray is None
     if live is not None and (not local or record_dir is None):
         raise ValueError("--live streams the episode logs of this process: drop --no-record, --workers and --ray")
-    spec = EvalSpec(str(checkpoint), task, kwargs, config.get("actions", "continuous"), seed, deterministic,
+    spec = EvalSpec(str(checkpoint), task, kwargs, plan.actions, seed, deterministic,
                     None if record_dir is None else str(record_dir), int(config.get("torch_threads", 1)),
                     *((live[1], live[0]) if live is not None else ()), started=time.time())
     start = time.perf_counter()
@@ -218,7 +297,7 @@ def to_markdown(result: dict) -> str:
             f"{s['avg_speed_m_s']:.2f} | {s['avg_distance_m']:.2f} | {s['avg_steps']:.1f} | "
             f"{s['success_pct']:.0f} | {s['collision_pct']:.0f} |",
         ]
-    else:
+    elif "route_completion_mean" in s:  # a task with route completion (waypoints)
         lines += [
             "| route completion mean | min | max | success % | collision % | avg reward | avg time (s) "
             "| avg speed (m/s) |",
@@ -227,18 +306,32 @@ def to_markdown(result: dict) -> str:
             f"{100 * s['route_completion_max']:.1f}% | {s['success_pct']:.0f} | {s['collision_pct']:.0f} | "
             f"{s['avg_reward']:.1f} | {s['avg_time_s']:.2f} | {s['avg_speed_m_s']:.2f} |",
         ]
+    else:  # none (urban): the outcome, time and speed
+        lines += [
+            "| success % | collision % | avg reward | avg time (s) | avg speed (m/s) | avg distance (m) | avg steps |",
+            "| ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+            f"| {s['success_pct']:.0f} | {s['collision_pct']:.0f} | {s['avg_reward']:.2f} | {s['avg_time_s']:.2f} | "
+            f"{s['avg_speed_m_s']:.2f} | {s['avg_distance_m']:.2f} | {s['avg_steps']:.1f} |",
+        ]
     lines += ["", comfort_line(s)] if comfort_line(s) else []
+    completion = any(row["route_completion"] is not None for row in result["rows"])
+    head = "| episode | seed | " + ("route completion | " if completion else "")
     lines += [
         "",
-        f"| episode | seed | route completion | reward | steps | time (s) | distance (m) {COMFORT_COLUMNS}| end |",
-        "| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |",
+        f"{head}reward | steps | time (s) | distance (m) {COMFORT_COLUMNS}| end |",
+        "| ---: " * (head.count("|") - 1 + 7) + "| --- |",
     ]
     for row in result["rows"]:
-        completion = "-" if row["route_completion"] is None else f"{100 * row['route_completion']:.1f}%"
-        lines.append(f"| {row['episode']} | {row['seed']} | {completion} | "
-                     f"{row['reward']:.1f} | {row['steps']} | {row['time_s']:.1f} | {row['distance_m']:.1f} "
-                     f"{comfort_cells(row)}| {row['end']} |")
+        cells = f"| {row['episode']} | {row['seed']} | "
+        if completion:
+            cells += ("-" if row["route_completion"] is None else f"{100 * row['route_completion']:.1f}%") + " | "
+        lines.append(f"{cells}{row['reward']:.1f} | {row['steps']} | {row['time_s']:.1f} | "
+                     f"{_fmt(row['distance_m'])} {comfort_cells(row)}| {row['end']} |")
     return "\n".join(lines)
+
+
+def _fmt(value: float | None) -> str:
+    return "-" if value is None else f"{value:.1f}"
 
 
 def eval_command(args) -> int:
@@ -249,6 +342,7 @@ def eval_command(args) -> int:
     from mjdrive.run_folder import fresh_folder
 
     task_kwargs = parse_task_kwargs(args.task_kwarg)
+    plan = plan_evaluation(args.checkpoint, args.task, task_kwargs)  # a mismatch: one line, nothing written yet
     record_dir = None
     if args.record:  # beside OUT.md/OUT.json as OUT/, else runs/eval/CHECKPOINT/; one evaluation per folder
         default = Path(args.out).with_suffix("") if args.out else Path("runs") / "eval" / Path(args.checkpoint).stem
@@ -257,7 +351,8 @@ def eval_command(args) -> int:
     result = evaluate(args.checkpoint, episodes=args.episodes, task=args.task, seed=args.seed,
                       task_kwargs=task_kwargs, deterministic=not args.stochastic, record_dir=record_dir,
                       progress="eval", workers=getattr(args, "workers", 0),
-                      ray=getattr(args, "ray", None), live=(args.live_host, args.live_port) if args.live else None)
+                      ray=getattr(args, "ray", None), live=(args.live_host, args.live_port) if args.live else None,
+                      plan=plan)
     if record_dir is not None:
         result["logs"] = record_dir
     markdown = to_markdown(result)

@@ -17,9 +17,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from mjdrive import suite
 from mjdrive.agents.algorithms import agent_class
 from mjdrive.agents.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
-from mjdrive.agents.env_factory import make_training_env
+from mjdrive.agents.env_factory import make_training_env, training_tasks
 from mjdrive.agents.replay import ReplayBuffer
 from mjdrive.agents.run_log import Run
 from mjdrive.agents.seeding import set_seed
@@ -78,6 +79,19 @@ def load_initial_state(path: str | Path, config: dict) -> tuple[dict, int, bool]
     check_resumable({"algorithm": network(payload["config"])}, {"algorithm": network(config)}, ("algorithm",),
                     f"start from {path}")
     return payload["state"], experience, True
+
+
+def check_task_kwargs(config: dict) -> None:
+    """The config's task keywords, checked against every task it trains on: ValueError in one line naming a bad
+    one (`actions`, the action set, is the config's own key, not a task keyword)."""
+    kwargs = dict(config.get("task_kwargs") or {})
+    if "actions" in kwargs:
+        raise ValueError(f"'actions' is not a task keyword: the action set is the config's `actions` (here "
+                         f"{config.get('actions', 'continuous')!r}); set it with --set actions=NAME")
+    domain, tasks = training_tasks(config)
+    for task in tasks:
+        config_class, defaults = suite.task_config(domain, task)
+        config_class.from_dict(kwargs, defaults, where=f"{domain}/{task}")
 
 
 def train(config: dict, out: str | Path, resume: bool = False, progress: bool = True) -> Path:
@@ -202,6 +216,7 @@ def train_command(args) -> int:
     if args.record_dir:
         config["record_dir"] = args.record_dir  # one MCAP log per training episode, per env copy
     out = args.out or f"runs/{config['algo']}_{config['task'].replace('/', '_')}_seed{config.get('seed', 0)}"
+    check_task_kwargs(config)  # a bad task keyword: one line, before the run folder is written
 
     def stop(signum, frame):  # SIGTERM (kill, a cluster's time limit) stops like Ctrl-C: state saved, see train
         raise KeyboardInterrupt

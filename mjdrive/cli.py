@@ -282,17 +282,22 @@ def cmd_drive(args) -> int:
 
         env = RecordEpisodes(env, out, record_options(args))
         announce_live(env)
-    from mjdrive.drive import HELP, drive
+    from mjdrive.drive import HELP, StopRequests, drive
 
     note(f"mjdrive drive: {HELP}")
     start = time.perf_counter()
-    try:
-        rows = drive(env, episodes=args.episodes, seed=args.seed, task_name=args.task, realtime=args.realtime,
-                     on_episode=lambda row: print(json.dumps(row), flush=True))
-    finally:
-        env.close()
-    summary = document("drive", args.task, task_kwargs, "keyboard", rows, wall_s=round(time.perf_counter() - start, 1))
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    stop = StopRequests()
+    with stop.installed():  # SIGINT, SIGTERM, a window closed from outside: the log and summary still get written
+        try:
+            rows = drive(env, episodes=args.episodes, seed=args.seed, task_name=args.task, realtime=args.realtime,
+                         on_episode=lambda row: print(json.dumps(row), flush=True), stop=stop)
+        finally:
+            env.close()
+        summary = document("drive", args.task, task_kwargs, "keyboard", rows,
+                           wall_s=round(time.perf_counter() - start, 1))
+        (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    if stop.requested:
+        note(f"mjdrive drive: stopped: {stop.reason}")
     print(f"wrote {out}/ ({'MCAP logs, ' if args.record else ''}summary.json)")
     return 0
 
@@ -551,9 +556,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# the optional packages and the extra of mjdrive that installs each (pyproject.toml)
+OPTIONAL_MODULES = {"matplotlib": "plot", "highway_env": "bench", "ray": "ray", "torch": "learn", "rsl_rl": "learn",
+                    "tensorboard": "learn", "numba": "fast"}
+
+
 def run_reporting_errors(prog: str, func: Callable[[], int | None]) -> int:
     """`func()`'s exit status; a user's mistake (a bad name, number, keyword, path or file: ValueError, OSError)
-    prints one line `PROG: error: ...` and gives status 2 (MJDRIVE_DEBUG=1: the traceback instead), Ctrl-C 130.
+    prints one line `PROG: error: ...` and gives status 2 (MJDRIVE_DEBUG=1: the traceback instead), Ctrl-C 130;
+    so does a missing optional package (OPTIONAL_MODULES), naming the extra that installs it.
     The `mjdrive` subcommands and the study tools (`python -m tools.NAME`) run through it."""
     try:
         return func() or 0
@@ -562,6 +573,14 @@ def run_reporting_errors(prog: str, func: Callable[[], int | None]) -> int:
             raise
         message = " ".join(str(error).split()) or type(error).__name__
         print(f"{prog}: error: {message}", file=sys.stderr)
+        return 2
+    except ModuleNotFoundError as error:
+        package = (error.name or "").split(".")[0]
+        if package not in OPTIONAL_MODULES or os.environ.get("MJDRIVE_DEBUG"):
+            raise
+        print(f"{prog}: error: this needs {package}, which is not installed: pip install "
+              f"'mjdrive[{OPTIONAL_MODULES[package]}]' (or pip install -e '.[{OPTIONAL_MODULES[package]}]' in a "
+              "clone)", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)

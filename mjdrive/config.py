@@ -337,19 +337,28 @@ def parse_task_kwargs(pairs: Sequence[str]) -> dict[str, Any]:
     return out
 
 
-def discrete_index(action: Any, names: Sequence[str], action_set: str) -> int:
-    """`action` as an index into the discrete action set `action_set` whose actions are `names`: what gymnasium's
-    `Discrete` accepts (a Python or numpy integer, a 0-d integer array; not a bool), in range. Anything else (a
-    float, even integral, a string, an array of another shape) raises ValueError naming the action set, so a
-    policy that emits the wrong type fails loudly instead of driving with a truncated index."""
-    integral = (isinstance(action, (int, np.integer)) or (isinstance(action, np.ndarray) and action.shape == ()
-                                                          and np.issubdtype(action.dtype, np.integer)))
-    if not integral or isinstance(action, (bool, np.bool_)):
-        raise ValueError(f"{action_set} actions are integer indices 0..{len(names) - 1} "
-                         f"({', '.join(f'{i} {n}' for i, n in enumerate(names))}), got {action!r} "
-                         f"({type(action).__name__})")
-    index = int(action)
-    if not 0 <= index < len(names):
-        raise ValueError(f"{action_set} action index must be in 0..{len(names) - 1} "
-                         f"({', '.join(f'{i} {n}' for i, n in enumerate(names))}), got {index}")
+INDEX_DTYPE = np.int64  # the dtype of gymnasium's Discrete spaces (an index must cast to it safely)
+
+
+def action_index(action, n: int, action_set: str) -> int:
+    """The index in 0..n-1 that a discrete action set's `action` names, accepting exactly what gymnasium's
+    `Discrete(n).contains` accepts: a Python int (bool included, as gymnasium takes it), a numpy integer scalar
+    or a 0-d integer array whose dtype casts safely to int64. Anything else (a float, even a whole one, a
+    string, a (1,) array, np.bool_) and an index out of range raise ValueError naming `action_set`: a
+    policy that emits floats must not drive with a truncated index."""
+    if isinstance(action, int):
+        index = int(action)  # a bool is 0 or 1, never a numpy mask
+    elif (isinstance(action, (np.generic, np.ndarray)) and np.issubdtype(action.dtype, np.integer)
+          and action.shape == () and np.can_cast(action.dtype, INDEX_DTYPE)):
+        index = int(action)
+    else:
+        kind = type(action).__name__
+        if isinstance(action, np.generic):
+            kind = f"numpy {action.dtype}"
+        elif isinstance(action, np.ndarray):
+            kind = f"array of dtype {action.dtype}, shape {action.shape}"
+        raise ValueError(f"action set {action_set!r}: an action is an integer index in 0..{n - 1} (a Python or "
+                         f"numpy integer, or a 0-d integer array), got {action!r} ({kind})")
+    if not 0 <= index < n:
+        raise ValueError(f"action set {action_set!r}: action index must be in 0..{n - 1}, got {index}")
     return index

@@ -6,15 +6,24 @@ Keys (the viewer reports presses, not releases, so commands persist):
   Down    less throttle, then more brake
   Left / Right   steer (the wheel returns to centre by itself, STEER_RETURN)
   Enter   end this episode and start the next
-Close the window to stop. The view follows the ego from behind (the `ego/chase` camera; Esc frees it). A
-mouse perturbation (Ctrl + drag) pushes the car without being logged: that episode will not replay.
+Close the window to stop, or send SIGINT (Ctrl-C) or SIGTERM: the episode under way ends as interrupted, its
+log is finished and the summary written. A window destroyed from outside (X errors) stops it the same way
+(`StopRequests`); an X connection that dies ends the process as Xlib does (the episode's `.mcap.part` stays,
+readable, and never blocks the next run in that folder). The view follows the ego from behind (the
+`ego/chase` camera; Esc frees it). A mouse perturbation (Ctrl + drag) pushes the car without being logged:
+that episode will not replay.
 """
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import ctypes.util
 import os
+import signal
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -77,6 +86,64 @@ class KeyboardDriver:
             self.throttle = self.steer = self.brake = 0.0
 
 
+class _XErrorEvent(ctypes.Structure):
+    """Xlib's XErrorEvent (the fields up to the codes)."""
+
+    _fields_ = [("type", ctypes.c_int), ("display", ctypes.c_void_p), ("resourceid", ctypes.c_ulong),
+                ("serial", ctypes.c_ulong), ("error_code", ctypes.c_ubyte), ("request_code", ctypes.c_ubyte),
+                ("minor_code", ctypes.c_ubyte)]
+
+
+_X_ERROR_HANDLER = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.POINTER(_XErrorEvent))
+_X_HANDLERS_SET: list = []  # every handler given to Xlib, kept alive as long as the process (Xlib may call it late)
+
+
+class StopRequests:
+    """Why `drive` should stop before its episodes are done: SIGINT, SIGTERM, or an X error of the viewer.
+
+    Xlib's default error handler ends the process on the spot when the viewer's window is destroyed from
+    outside (e.g. `xdotool windowclose`: BadDrawable), leaving the episode's log unfinished; while
+    `installed()`, an X error asks the drive to stop instead (the viewer's thread carries on until closed)."""
+
+    def __init__(self):
+        self.reason: str | None = None  # what asked to stop, for messages
+        self._x_handler = _X_ERROR_HANDLER(self._on_x_error)
+
+    @property
+    def requested(self) -> bool:
+        return self.reason is not None
+
+    def request(self, reason: str) -> None:
+        if self.reason is None:
+            self.reason = reason
+
+    def _on_signal(self, signum: int, frame) -> None:
+        self.request(signal.Signals(signum).name)
+
+    def _on_x_error(self, display, event) -> int:
+        self.request(f"the viewer's window failed (X error {event.contents.error_code}, request "
+                     f"{event.contents.request_code}): closed from outside?")
+        return 0  # handled: Xlib carries on
+
+    @contextlib.contextmanager
+    def installed(self) -> Iterator[StopRequests]:
+        """SIGINT and SIGTERM handlers (main thread only; the previous ones are restored on exit) and an Xlib
+        error handler (where libX11 is found; it stays, as the viewer's thread may meet X errors until the
+        process ends) that call `request`."""
+        previous = {}
+        if threading.current_thread() is threading.main_thread():
+            previous = {sig: signal.signal(sig, self._on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+        name = ctypes.util.find_library("X11")
+        if name is not None:
+            _X_HANDLERS_SET.append(self._x_handler)
+            ctypes.CDLL(name).XSetErrorHandler(self._x_handler)
+        try:
+            yield self
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+
 def has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
@@ -123,12 +190,14 @@ def close_viewer(viewer, threads, timeout: float = 5.0) -> None:
 
 
 def drive(env, *, episodes: int, seed: int, task_name: str, realtime: float = 1.0,
-          on_episode=None) -> list[dict]:
+          on_episode=None, stop: StopRequests | None = None) -> list[dict]:
     """Drive `env` (a gymnasium driving env, recorded or not) by keyboard in MuJoCo's passive viewer for
     `episodes` episodes (0: until the window closes), seeds seed, seed+1, ...; `realtime` >1 runs faster
-    than the wall clock. `on_episode(row)` gets each finished episode's summary row; returns the rows."""
+    than the wall clock. `on_episode(row)` gets each finished episode's summary row; returns the rows.
+    `stop` (installed by the caller): a request ends the episode under way as interrupted, and the drive."""
     from mjdrive.record.summary import episode_row, roundabout_arms
 
+    stop = stop or StopRequests()
     base = env.unwrapped
     dt = base.dm_env.control_timestep()  # [s]
     arms = roundabout_arms(base.domain, base.task_name, base.task_kwargs)
@@ -139,7 +208,7 @@ def drive(env, *, episodes: int, seed: int, task_name: str, realtime: float = 1.
     last_outcome = None
     episode = 0
     try:
-        while episodes == 0 or episode < episodes:
+        while (episodes == 0 or episode < episodes) and not stop.requested:
             _, info = env.reset(seed=seed + episode)
             driver.reset()
             physics = base.dm_env.physics
@@ -151,7 +220,7 @@ def drive(env, *, episodes: int, seed: int, task_name: str, realtime: float = 1.
             total, steps, reward = 0.0, 0, 0.0
             terminated = truncated = interrupted = False
             next_tick = time.perf_counter()
-            while viewer.is_running():
+            while viewer.is_running() and not stop.requested:
                 action = driver.action(dt)
                 _, reward, terminated, truncated, info = env.step(action)
                 total += reward
@@ -167,7 +236,7 @@ def drive(env, *, episodes: int, seed: int, task_name: str, realtime: float = 1.
                     interrupted = True
                     break
             else:
-                interrupted = True  # the window was closed mid-episode
+                interrupted = True  # the window was closed mid-episode, or a stop was requested
             log = Path(info["record_path"]).name if "record_path" in info else None
             if interrupted and hasattr(env, "recorder"):  # finish the log now, marked interrupted
                 path = env.recorder.end(interrupted=True, task=base.task)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -14,6 +15,7 @@ from mjdrive.comfort import (
     ComfortMetrics,
     acceleration_profile,
     comfort_metrics,
+    finite_difference_jerk,
     savgol_window,
 )
 from mjdrive.vehicle import Vehicle
@@ -231,3 +233,57 @@ def test_each_comfort_sample_is_the_chassis_after_its_step(domain, task):
             env.reset()  # a new episode: its first sample is the state after reset
             k = 0
     assert checked == 60 and np.ptp(yaws) > 0.0  # the car drove and turned: the samples changed
+
+
+def _filter_gains(f: float, dt: float) -> tuple[float, float]:
+    """Amplitude passed of a jerk oscillation of f [Hz] sampled every dt [s]: (the comfort metrics' two
+    Savitzky-Golay derivatives, window 5 samples, order 2; two first differences), from their frequency
+    responses: (2 sin x + 4 sin 2x) / (10 x) per derivative, sin(x/2) / (x/2) per difference, x = 2 pi f dt."""
+    x = 2 * math.pi * f * dt
+    return ((2 * math.sin(x) + 4 * math.sin(2 * x)) / (10 * x)) ** 2, (math.sin(x / 2) / (x / 2)) ** 2
+
+
+@pytest.mark.parametrize("f, dt, savgol, differences", [(1.0, 0.1, 0.628, 0.968), (0.5, 0.1, 0.893, 0.992),
+                                                          (0.5, 0.2, 0.628, 0.968), (2.0, 0.1, 0.115, 0.875)])
+def test_the_filter_attenuates_a_jerk_oscillation_as_docs_summary_states(f, dt, savgol, differences):
+    """docs/summary.md: at 10 Hz the filter passes 63% of a 1 Hz jerk oscillation's amplitude, the finite
+    differences 97%. Measured on a sampled oscillation (the in-phase amplitude by least squares) and
+    against the closed form."""
+    omega, jerk_amp = 2 * math.pi * f, 1.0  # [rad/s], [m/s^3]
+    t = dt * np.arange(round(120.0 / dt))
+    speed = 10.0 - jerk_amp / omega**2 * np.sin(omega * t)  # [m/s] its jerk: jerk_amp sin(omega t)
+    vel, yaw = straight(speed, 0.4)
+    inner = slice(10, -10)
+    p = acceleration_profile(vel, yaw, dt)
+    basis = np.c_[np.sin(omega * t), np.cos(omega * t)][inner]
+    gain = np.hypot(*np.linalg.lstsq(basis, p.jerk_lon[inner], rcond=None)[0]) / jerk_amp
+    jerk_lon, jerk_lat = finite_difference_jerk(vel, yaw, dt)
+    t_fd = t[1:-1]  # the second differences sit on the samples between the first and the last
+    basis_fd = np.c_[np.sin(omega * t_fd), np.cos(omega * t_fd)][inner]
+    gain_fd = np.hypot(*np.linalg.lstsq(basis_fd, jerk_lon[inner], rcond=None)[0]) / jerk_amp
+    assert (gain, gain_fd) == pytest.approx(_filter_gains(f, dt), abs=2e-3)
+    assert (gain, gain_fd) == pytest.approx((savgol, differences), abs=1e-3)
+    assert np.abs(jerk_lat).max() < 1e-9
+    docs = " ".join((Path(__file__).resolve().parents[1] / "docs" / "summary.md").read_text().split())
+    assert "passes 63% of a 1 Hz jerk oscillation's amplitude" in docs and "97% of a 1 Hz oscillation" in docs
+
+
+def test_unfiltered_jerk_of_constant_jerk_and_circles():
+    dt, j = 0.1, 0.8  # [s], [m/s^3]
+    t = dt * np.arange(100)
+    vel, yaw = straight(2.0 + 0.5 * j * t**2, -1.1)  # a = j t: the differences are exact
+    jerk_lon, jerk_lat = finite_difference_jerk(vel, yaw, dt)
+    np.testing.assert_allclose(jerk_lon, j, rtol=1e-9)
+    np.testing.assert_allclose(jerk_lat, 0.0, atol=1e-9)
+    meter = ComfortMeter()
+    for velocity, heading in zip(vel, yaw, strict=True):
+        meter.add(velocity, heading)
+    assert meter.unfiltered_jerk(dt) == pytest.approx((j, j), rel=1e-9)
+    v, radius = 10.0, 50.0  # uniform circular motion: constant car-frame acceleration, no jerk
+    yaw = np.angle(np.exp(1j * (0.3 + v / radius * t * 4)))  # wraps around +-pi
+    vel = v * np.c_[np.cos(yaw), np.sin(yaw)]
+    assert np.abs(np.hypot(*finite_difference_jerk(vel, yaw, dt))).max() < 1e-9
+    short = ComfortMeter()
+    short.add((1.0, 0.0), 0.0)
+    short.add((1.0, 0.0), 0.0)
+    assert all(math.isnan(value) for value in short.unfiltered_jerk(dt))

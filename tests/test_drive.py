@@ -80,3 +80,43 @@ def test_drive_by_keyboard_moves_the_car_and_logs_a_replayable_episode(display, 
     actions = episode.actions()
     assert actions[:, 0].max() == pytest.approx(0.8) and actions[:, 1].max() > 0.1  # the keys reached the car
     assert replay(out / row["log"]).match
+
+
+@pytest.mark.parametrize("stop", ["SIGINT", "SIGTERM", "windowclose"])
+def test_drive_stops_cleanly_on_a_signal_or_its_window_destroyed(stop, display, tmp_path):
+    """Ctrl-C (SIGINT), SIGTERM or the viewer's window destroyed from outside (`xdotool windowclose`: an X
+    BadDrawable error, which Xlib's default handler turns into an exit) each end the drive within seconds: the
+    episode under way is logged as interrupted and replays, and summary.json is written."""
+    import signal
+
+    out = tmp_path / "drive"
+    command = subprocess.Popen(
+        [sys.executable, "-m", "mjdrive.cli", "drive", "--task", "waypoints/straight", "--out", str(out)],
+        env={**os.environ, "DISPLAY": display}, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        found = xdotool(display, "search", "--sync", "--name", "MuJoCo")
+        assert found.returncode == 0, found.stderr
+        time.sleep(3.0)  # steps driven (on a loaded machine the first ones may be late: none is required)
+        if stop == "windowclose":
+            xdotool(display, "windowclose", found.stdout.split()[0])
+        else:
+            command.send_signal(getattr(signal, stop))
+        start = time.monotonic()
+        stdout, stderr = command.communicate(timeout=30)
+        took = time.monotonic() - start
+    finally:
+        if command.poll() is None:
+            command.kill()
+            command.communicate()
+    assert command.returncode == 0, stderr
+    assert took < 15, took
+    assert "mjdrive drive: stopped: " + ("SIGINT" if stop == "SIGINT" else "SIGTERM" if stop == "SIGTERM" else
+                                         "the viewer's window failed (X error 9") in stderr, stderr
+    assert "Traceback" not in stderr and "X Error" not in stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert [row["end"] for row in summary["rows"]] == ["interrupted"]
+    assert not list(out.glob("*.part"))
+    episode = read_episode(out / summary["rows"][0]["log"])
+    assert episode.intact and episode.summary["interrupted"]
+    assert episode.summary["steps"] == len(episode.messages.get("/action", [])) == summary["rows"][0]["steps"]
+    assert replay(out / summary["rows"][0]["log"]).match

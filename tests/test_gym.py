@@ -104,3 +104,41 @@ def test_pedal_actions_drive_or_brake_never_both():
     speeds = [base.task.vehicle.speed(base.dm_env.physics.raw_data) for base in batched.bases]
     assert speeds[0] > 2.0 and abs(speeds[1]) < 0.05  # full pedal drives off; full brake stays put
     batched.close()
+
+
+ODD_ACTIONS = [2, True, False, np.int8(2), np.int64(2), np.uint8(2), np.uint32(2), np.uint64(2), np.array(2),
+               np.array(2, np.int16), np.array([2]), np.array([[2]]), 2.0, 2.5, 6.9, np.float32(2.0), np.float64(2.5),
+               np.array(2.0), "3", b"3", None, [2], (2,), np.bool_(True), np.array(True), complex(2, 0), -1, 4,
+               2**70, np.int64(-1), np.int64(4)]
+
+
+@pytest.mark.parametrize("action", ODD_ACTIONS, ids=repr)
+def test_action_index_accepts_exactly_what_a_discrete_space_contains(action):
+    from mjdrive.envs.actions import action_index
+
+    space = gym.spaces.Discrete(4)
+    if space.contains(action):
+        assert action_index(action, 4, "table1") == int(action)
+        assert type(action_index(action, 4, "table1")) is int
+    else:
+        with pytest.raises(ValueError, match="action set 'table1'"):
+            action_index(action, 4, "table1")
+
+
+@pytest.mark.parametrize("actions, env_id", [("table1", "mjdrive/Waypoints-Straight-v0"),
+                                             ("table2", "mjdrive/Waypoints-Straight-v0"),
+                                             ("roundabout7", "mjdrive/Roundabout-D120-v0")])
+def test_a_float_or_string_action_is_refused_by_name_and_never_truncated(actions, env_id):
+    from mjdrive.envs.actions import ACTION_TABLES
+
+    env = gym.make(env_id, actions=actions, time_limit=5.0)
+    env.reset(seed=0)
+    physics = env.unwrapped.dm_env.physics
+    for bad in (2.5, 6.9, "3", np.float32(3.0), np.array([3])):
+        with pytest.raises(ValueError, match=f"action set '{actions}': an action is an integer index"):
+            env.step(bad)
+    assert physics.data.time == 0.0  # nothing was applied
+    env.step(np.int64(2))  # a policy's argmax
+    np.testing.assert_allclose(env.unwrapped.task.last_action, ACTION_TABLES[actions][2], atol=1e-6)
+    assert physics.data.time > 0.0
+    env.close()

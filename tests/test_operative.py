@@ -157,8 +157,8 @@ def test_decision_tasks_take_their_scenarios_actions_and_refuse_anything_else():
     env.reset()
     env.step(np.int64(1))
     env.step(np.array(2))
-    for bad in (1.0, 2.5, "1", True, 3, -1, np.array([1])):
-        with pytest.raises(ValueError, match="urban/lane_change decision"):
+    for bad in (1.0, 2.5, "1", 3, -1, np.array([1]), np.bool_(True)):
+        with pytest.raises(ValueError, match="urban/lane_change decisions"):
             env.step(bad)
     crossroad = suite.load("urban", "crossroad", {"decisions": True, "road_users": {"car": 0}})
     assert crossroad.action_spec().name == "drive,stop"

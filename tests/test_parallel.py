@@ -207,8 +207,10 @@ def test_stopping_a_parallel_evaluation_leaves_no_process_behind(stop):
     cleanup can run) takes the workers and multiprocessing's helpers with it within seconds."""
     command = [sys.executable, "-m", "mjdrive.cli", "eval", "--checkpoint", str(CHECKPOINT), "--episodes", "200",
                "--workers", "2", "--no-record"]
+    # its own process group, as a terminal's foreground job; SIGINT as a terminal leaves it (a test run started
+    # in the background of a non-interactive shell inherits SIGINT ignored, and Python would keep ignoring it)
     proc = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            start_new_session=True)  # its own process group, as a terminal's foreground job
+                            start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
     def group() -> list[str]:
         """Command lines of the live processes of its group (zombies are gone already)."""

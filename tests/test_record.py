@@ -261,6 +261,77 @@ def test_two_recorders_in_one_process(tmp_path):
         assert replay(path).match
 
 
+def _flip(data: bytes, start: int, length: int) -> bytes:
+    """`data` with `length` bytes from `start` inverted."""
+    out = bytearray(data)
+    for i in range(start, start + length):
+        out[i] ^= 0xFF
+    return bytes(out)
+
+
+def test_a_damaged_summary_section_chunk_or_record_is_flagged_and_the_rest_is_read(recorded, tmp_path, capsys):
+    """Every CRC an MCAP file has is checked: 100 bytes flipped near the end (the summary section), inside a
+    chunk, or a digit changed in the summary metadata record (outside the chunks) are each reported in one
+    line by `read_episode`, `mjdrive logs` (its table too) and `mjdrive replay`; what is intact is still read."""
+    _, paths, steps = recorded
+    data = paths[0].read_bytes()
+    intact = read_episode(paths[0])
+    assert intact.intact and intact.describe_damage() == ""
+    with open(paths[0], "rb") as f:
+        summary = make_reader(f).get_summary()
+    chunks = sorted(summary.chunk_indexes, key=lambda index: index.chunk_start_offset)
+    assert len(chunks) > 3
+    middle = len(chunks) // 2
+    record = next(index for index in summary.metadata_indexes if index.name == "summary")
+    assert record.offset > chunks[-1].chunk_start_offset + chunks[-1].chunk_length  # outside the chunks
+    key_at = data.index(b"sim_time", record.offset, record.offset + record.length)
+    value_at = key_at + len(b"sim_time") + 4  # after the value's 4-byte length: its first digit
+    digit = data[value_at:value_at + 1]
+    assert digit.isdigit()
+    cases = {
+        "tail.mcap": (_flip(data, len(data) - 200, 100), "its summary section (bytes"),
+        "chunk.mcap": (_flip(data, chunks[middle].chunk_start_offset + chunks[middle].chunk_length - 150, 100),
+                       f"chunk {middle + 1} fails its check"),
+        "record.mcap": (data[:value_at] + (b"7" if digit != b"7" else b"8") + data[value_at + 1:],
+                        "its data section fails its CRC check"),
+    }
+    folder = tmp_path / "damaged"
+    folder.mkdir()
+    for name, (content, expected) in cases.items():
+        (folder / name).write_bytes(content)
+        episode = read_episode(folder / name)
+        assert episode.complete and not episode.intact, name
+        line = episode.describe_damage()
+        assert expected in line and "\n" not in line and "is damaged" in line, line
+        assert episode.summary is not None  # the summary record sits outside the chunks: still read
+        actions, physics = episode.messages.get("/action", []), episode.messages.get("/physics", [])
+        if name == "chunk.mcap":  # a prefix of the episode: the chunks before the damaged one
+            assert 0 < len(actions) < steps[0] and physics == intact.messages["/physics"][: len(physics)]
+            assert "data section passes" not in line
+        else:
+            assert actions == intact.messages["/action"] and physics == intact.messages["/physics"]
+        if name == "tail.mcap":
+            assert "the data section passes its CRC check" in line
+        if name == "record.mcap":
+            assert episode.summary["sim_time"] != intact.summary["sim_time"]  # read, but flagged as damaged
+    assert cli.main(["logs", str(folder)]) == 0
+    table = capsys.readouterr().out
+    for name, (_, expected) in cases.items():
+        assert f"| {name} (damaged) | waypoints/straight |" in table
+        assert sum(line.startswith(f"- {folder / name} is damaged: ") and expected in line
+                   for line in table.splitlines()) == 1, table
+    assert "**all 3 complete (3 damaged)**" in table
+    assert cli.main(["replay", str(folder / "tail.mcap")]) == 1
+    out = capsys.readouterr().out
+    assert "tail.mcap is damaged: its summary section" in out
+    assert f"match: {steps[0]} steps" in out and "the file itself is damaged" in out
+    assert cli.main(["replay", str(folder / "chunk.mcap")]) == 1
+    out = capsys.readouterr().out
+    assert f"chunk {middle + 1} fails its check" in out and "match:" in out and "MISMATCH" not in out
+    assert cli.main(["replay", str(paths[0])]) == 0  # the intact file: a match, exit status 0
+    assert "damaged" not in capsys.readouterr().out
+
+
 _WORKER = """
 import sys, time
 import numpy as np
@@ -372,3 +443,26 @@ def test_batched_env_records_each_copy_apart_and_every_file_replays(tmp_path):
         for path in files[:2]:
             result = replay(path)
             assert result.complete and result.mismatch_step is None and result.steps == 10, result
+
+
+def test_a_part_is_locked_while_written_and_abandoned_or_killed_ones_are_removed_by_the_next_run(tmp_path, capsys):
+    """The recorder holds a lock on each .part while it writes; `abandon()` (an error mid-episode) leaves the
+    file readable and unlocked, and a fresh run folder there removes it (the killed writer's case is
+    tests/test_eval_tasks.py's)."""
+    from mjdrive.run_folder import fresh_folder, part_is_live
+
+    env = RecordEpisodes(make_env("waypoints", "straight", **TASK_KWARGS), tmp_path)
+    env.reset(seed=3)
+    for _ in range(5):
+        env.step(np.array([0.5, 0.0, 0.0]))
+    part = env.recorder._part
+    assert part.name.endswith(".mcap.part") and part_is_live(part)
+    with pytest.raises(ValueError, match="is in use: a running process is writing"):
+        fresh_folder(tmp_path, overwrite=True)
+    assert env.recorder.abandon() == part and part.exists() and not part_is_live(part)
+    assert not read_episode(part).complete
+    env.close()  # nothing open any more: no file is written
+    assert [p.name for p in tmp_path.iterdir()] == [part.name]
+    fresh_folder(tmp_path, overwrite=False)
+    assert list(tmp_path.iterdir()) == []
+    assert "removed 1 unfinished log" in capsys.readouterr().err

@@ -8,15 +8,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.patches import Polygon  # noqa: E402
+import numpy as np
 
 from mjdrive.cli import ArgumentParser, int_at_least, run_reporting_errors
-from mjdrive.roads import Marking, UrbanRoute, urban_route  # noqa: E402
+from mjdrive.roads import Marking, UrbanRoute, urban_route
 
 ROUTE_SPACING = 5.0  # [m] between route dots
 SCENARIO_COLOURS = {"roundabout": "tab:purple", "lane_change": "tab:green", "crossroad": "tab:red",
@@ -25,6 +20,8 @@ SCENARIO_COLOURS = {"roundabout": "tab:purple", "lane_change": "tab:green", "cro
 
 def draw(urban: UrbanRoute, ax) -> None:
     """Draw the map, route, tactical trajectory and route conflicts on a matplotlib axis."""
+    from matplotlib.patches import Polygon
+
     rm = urban.road_map
     for lane in rm.lanes:
         ax.add_patch(Polygon(lane.polygon(), closed=True, fc="0.45", ec="none", zorder=1))
@@ -65,6 +62,11 @@ def main() -> None:
     args = parser.parse_args()
     urban = urban_route()
     x0, y0, x1, y1 = urban.road_map.bounds()
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
     fig, ax = plt.subplots(figsize=(10, 10 * (y1 - y0 + 20) / (x1 - x0 + 20) + 0.6))
     draw(urban, ax)
     ax.set_xlim(x0 - 10, x1 + 10)

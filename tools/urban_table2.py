@@ -5,8 +5,10 @@ paper's rows.
 
 Episode i of every driver runs with seed SEED + i. The drivers of the decision action set (`rules`,
 `always_drive`, `always_stop`) drive the task with `decisions=True` (the operative level underneath); the others
-with throttle, steer and brake. Metrics per episode from the task's `info` (comfort metrics sampled at the
-control rate, 10 Hz, Savitzky-Golay smoothed: `mjdrive.comfort`); the table shows their means over episodes,
+with throttle, steer and brake. Metrics per episode from the task's `info` (comfort metrics of the chassis in the
+car's heading frame, sampled at the control rate, 10 Hz, Savitzky-Golay smoothed over 0.5 s: `mjdrive.comfort`,
+docs/summary.md); two more columns give the p95 and max jerk of the same samples unfiltered (finite differences,
+`ComfortMeter.unfiltered_jerk`), to compare with figures filtered otherwise. The table shows means over episodes,
 like the paper's; comfort and time over successful episodes only.
 """
 
@@ -27,7 +29,8 @@ from tools.report import publish
 
 PAPER = {"Ours (paper, hybrid DRL)": (95.76, 4.37, 6.20, 3.33, 76.85, 7.60),
          "CARLA Autopilot (paper)": (100.0, 8.63, 11.94, 2.98, 140.23, 2.75)}
-COLUMNS = ("success [%]", "p95 jerk [m/s^3]", "max jerk [m/s^3]", "p95 accel [m/s^2]", "time [s]", "speed [m/s]")
+COLUMNS = ("success [%]", "p95 jerk [m/s^3]", "max jerk [m/s^3]", "p95 accel [m/s^2]", "time [s]", "speed [m/s]",
+           "p95 jerk unfiltered [m/s^3]", "max jerk unfiltered [m/s^3]")
 
 
 _ENVS: dict[tuple[str, bool], gym.Env] = {}  # this process's env of the last task (a worker keeps it)
@@ -59,9 +62,12 @@ def episode(spec: tuple[str, str, int], index: int) -> dict:
             break
     end = ("success" if info["success"] else "collision" if info["collision"] else
            "off_route" if info["off_route"] else "time_limit")
+    task = env.unwrapped.task
+    raw_p95, raw_max = task.comfort.unfiltered_jerk(task.control_dt)  # the same samples, finite differences
     return {"seed": seed + index, "end": end, "time": info["elapsed_time"], "speed": info["average_speed"],
             "jerk_p95": info["jerk_p95_mps3"], "jerk_max": info["jerk_max_mps3"],
-            "accel_p95": info["accel_p95_mps2"], "scenario": info["scenario"]}
+            "accel_p95": info["accel_p95_mps2"], "jerk_p95_raw": raw_p95, "jerk_max_raw": raw_max,
+            "scenario": info["scenario"]}
 
 
 def run(task: str, policy: str, episodes: int, seed: int, workers: int = 0, ray: str | None = None) -> list[dict]:
@@ -94,14 +100,17 @@ def markdown(task: str, policies: str | list[str], rows: list[dict] | list[list[
              f"`python -m tools.urban_table2 --task {task} --policy {' '.join(policies)} --episodes {n} "
              f"--seed {seed}`: {n} episodes per driver (seeds {seed}-{seed + n - 1}). Means over episodes (comfort, "
              "time and speed over the successful ones), beside the paper's rows (CARLA Town03, its own route and "
-             "traffic: a comparison of magnitudes, not of the same world).", "",
+             "traffic: a comparison of magnitudes, not of the same world). Comfort: the chassis in the car's heading "
+             "frame, sampled at the control rate, Savitzky-Golay smoothed over 0.5 s (docs/summary.md: it passes 63% "
+             "of a 1 Hz jerk oscillation's amplitude); the last two columns are the same samples' jerk by finite "
+             "differences, unfiltered (the paper does not say how it filtered).", "",
              "| driver | " + " | ".join(COLUMNS) + " |", "| --- |" + " ---: |" * len(COLUMNS)]
     notes = []
     for policy, episodes in zip(policies, rows, strict=True):
         ok = [r for r in episodes if r["end"] == "success"]
         mean = (lambda key, ok=ok: float(np.mean([r[key] for r in ok])) if ok else float("nan"))  # noqa: E731
         ours = (100.0 * len(ok) / len(episodes), mean("jerk_p95"), mean("jerk_max"), mean("accel_p95"),
-                mean("time"), mean("speed"))
+                mean("time"), mean("speed"), mean("jerk_p95_raw"), mean("jerk_max_raw"))
         lines.append(f"| mjdrive {DRIVER_NAMES.get(policy, policy)} | " + " | ".join(f"{v:.2f}" for v in ours)
                      + " |")
         ends = {e: sum(r["end"] == e for r in episodes) for e in ENDS}
@@ -111,7 +120,7 @@ def markdown(task: str, policies: str | list[str], rows: list[dict] | list[list[
             note += "; did not arrive: " + ", ".join(
                 f"seed {r['seed']} ({r['end']} in {r['scenario']} at {r['time']:.0f} s)" for r in failed)
         notes.append(note + ".")
-    lines += [f"| {name} | " + " | ".join(f"{v:.2f}" for v in values) + " |" for name, values in PAPER.items()]
+    lines += [f"| {name} | " + " | ".join(f"{v:.2f}" for v in values) + " | - | - |" for name, values in PAPER.items()]
     return "\n".join(lines + ["", "Ends: " + " ".join(notes)]) + "\n"
 
 

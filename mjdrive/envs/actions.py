@@ -6,6 +6,8 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
+from mjdrive.config import action_index
+
 KEEP = np.nan  # in a table's steer column: keep the previous steer command
 
 # Study 004, Table 1: throttle 0.5 with steer -0.1 / 0 / 0.1, or coast (throttle 0) keeping the last steer.
@@ -23,9 +25,10 @@ ACTION_TABLES = {"table1": TABLE1, "table2": TABLE2, "roundabout7": ROUNDABOUT7}
 class DiscreteActions(gym.ActionWrapper):
     """Maps a discrete action index to a row (throttle, steer, brake) of `table`."""
 
-    def __init__(self, env: gym.Env, table: np.ndarray):
+    def __init__(self, env: gym.Env, table: np.ndarray, name: str = "discrete"):
         super().__init__(env)
         self.table = np.asarray(table, np.float64)
+        self.name = name  # the action set's name, in errors
         self.action_space = gym.spaces.Discrete(len(self.table))
         self._last_steer = 0.0
 
@@ -34,10 +37,7 @@ class DiscreteActions(gym.ActionWrapper):
         return self.env.reset(**kwargs)
 
     def action(self, action) -> np.ndarray:
-        index = int(action)
-        if not 0 <= index < len(self.table):
-            raise ValueError(f"action index must be in [0, {len(self.table) - 1}], got {action!r}")
-        command = self.table[index].copy()
+        command = self.table[action_index(action, len(self.table), self.name)].copy()
         if np.isnan(command[1]):
             command[1] = self._last_steer
         self._last_steer = command[1]
@@ -75,4 +75,4 @@ def wrap_actions(env: gym.Env, actions: str) -> gym.Env:
         return PedalActions(env)
     if actions not in ACTION_TABLES:
         raise ValueError(f"unknown action set {actions!r}; valid: {', '.join(ACTION_SETS)}")
-    return DiscreteActions(env, ACTION_TABLES[actions])
+    return DiscreteActions(env, ACTION_TABLES[actions], actions)

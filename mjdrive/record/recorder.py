@@ -74,7 +74,8 @@ from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 
 from mjdrive.comfort import ComfortMeter
 from mjdrive.record import proto, scene
-from mjdrive.record.summary import comfort_fields
+from mjdrive.record.summary import COMFORT_FIELDS, comfort_fields
+from mjdrive.run_folder import lock_part
 from mjdrive.sensors import SENSORS
 
 FORMAT_VERSION = 1
@@ -166,8 +167,32 @@ def package_versions() -> dict[str, str]:
     return versions
 
 
-def _json_schema(title: str, properties: dict[str, str]) -> dict:
-    return {"title": title, "type": "object", "properties": {k: {"type": t} for k, t in properties.items()}}
+JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
+
+
+def _json_schema(title: str, properties: dict[str, str | tuple[str, ...] | dict], description: str = "") -> dict:
+    """The JSON schema of a JSON channel's messages: an object with exactly `properties`, every one required.
+    A property is a JSON type name ("number"), a tuple of them (("number", "null"): nullable) or a whole
+    property schema (a dict, e.g. with a description giving its unit). A key sent but not declared here, or a
+    value of another type, fails tests/test_record_schemas.py, which validates every JSON message of an
+    episode of every task."""
+    def prop(spec: str | tuple[str, ...] | dict) -> dict:
+        if isinstance(spec, dict):
+            return spec
+        return {"type": list(spec) if isinstance(spec, tuple) else spec}
+
+    schema = {"$schema": JSON_SCHEMA_DIALECT, "title": title, "type": "object",
+              "properties": {key: prop(spec) for key, spec in properties.items()},
+              "required": list(properties), "additionalProperties": False}
+    if description:
+        schema["description"] = description
+    return schema
+
+
+def _number(unit: str, description: str = "", nullable: bool = False) -> dict:
+    """A number property with its unit (and what it is)."""
+    return {"type": ["number", "null"] if nullable else "number",
+            "description": " ".join(part for part in (description, f"[{unit}]" if unit else "") if part)}
 
 
 def _jsonable(value: Any) -> Any:
@@ -188,13 +213,45 @@ def _jsonable(value: Any) -> Any:
 
 
 _EGO_STATE = _json_schema("mjdrive.EgoState", {
-    "t": "number", "x": "number", "y": "number", "yaw": "number", "speed": "number", "yaw_rate": "number",
-    "accel_long": "number", "accel_lat": "number", "jerk_long": "number", "jerk_lat": "number", "jerk": "number",
-    "steering_angle": "number", "throttle": "number", "steer": "number", "brake": "number",
-    "lane_offset": "number", "heading_error": "number", "scenario": "string"})
-_ACTION = _json_schema("mjdrive.Action", {"throttle": "number", "steer": "number", "brake": "number"})
-_REWARD = _json_schema("mjdrive.Reward", {"reward": "number", "return": "number", "terms": "object"})
-_SUMMARY = _json_schema("mjdrive.EpisodeSummary", {"steps": "integer", "return": "number"})
+    "t": _number("s", "simulated time"), "x": _number("m", "chassis position, world frame"), "y": _number("m"),
+    "yaw": _number("rad", "heading, world frame"), "speed": _number("m/s", "signed forward speed"),
+    "yaw_rate": _number("rad/s"),
+    "accel_long": _number("m/s^2", "IMU acceleration, forward (instantaneous)"),
+    "accel_lat": _number("m/s^2", "IMU acceleration, leftward (instantaneous)"),
+    "jerk_long": _number("m/s^3", "finite difference of accel_long over the control step"),
+    "jerk_lat": _number("m/s^3", "finite difference of accel_lat over the control step"),
+    "jerk": _number("m/s^3", "hypot(jerk_long, jerk_lat)"),
+    "steering_angle": _number("rad", "front wheels' steering angle"),
+    "throttle": _number("", "command applied, 0..1"), "steer": _number("", "command applied, -1..1 (+ = left)"),
+    "brake": _number("", "command applied, 0..1"),
+    "lane_offset": _number("m", "lateral offset from the lane's or route's centre line (+ = left)"),
+    "heading_error": _number("rad", "heading minus the lane's or route's heading"),
+    "scenario": {"type": ["string", "null"], "description": "urban tasks: the active scenario; null on others"},
+}, "The ego's state after every step (and after the reset).")
+_ACTION = _json_schema("mjdrive.Action", {
+    "throttle": _number("", "0..1"), "steer": _number("", "-1..1 (+ = left)"), "brake": _number("", "0..1"),
+}, "The (throttle, steer, brake) command the task applied at a step, exact float64.")
+_REWARD = _json_schema("mjdrive.Reward", {
+    "reward": _number("", "the step's reward (the task's units)"), "return": _number("", "the sum so far"),
+    "terms": {"type": "object", "additionalProperties": {"type": "number"},
+              "description": "the reward's terms by name (`task.reward_terms`; they vary by task)"},
+}, "The reward of every step with its terms.")
+_SUMMARY = _json_schema("mjdrive.EpisodeSummary", {
+    "task": {"type": "string", "description": "DOMAIN/TASK"},
+    "episode": {"type": "integer", "description": "the recorder's episode index"},
+    "seed": {"type": ["integer", "null"], "description": "the reset seed (null: none)"},
+    "steps": {"type": "integer", "description": "control steps"},
+    "return": _number("", "the sum of the rewards"),
+    "terminated": {"type": "boolean"}, "truncated": {"type": "boolean"},
+    "interrupted": {"type": "boolean", "description": "stopped before the env ended the episode"},
+    "sim_time": _number("s", "simulated time of the last step"),
+    "mean_speed_m_s": _number("m/s", "distance / time where the task says them, else the mean logged speed"),
+    **{row: _number("m/s^3" if row.endswith("m_s3") else "m/s^2", "comfort metric (docs/summary.md); null: too "
+                    "short to filter", nullable=True) for row in COMFORT_FIELDS.values()},
+    "info": {"type": "object", "description": "the task's `info` at the episode's end (its keys per task: "
+             "docs/waypoints.md, roundabout.md, urban.md); NaN and inf as null, arrays as lists",
+             "additionalProperties": {"type": ["number", "integer", "boolean", "string", "null", "array", "object"]}},
+}, "The episode's summary, once at its end; also the MCAP metadata record `summary`.")
 
 
 class _Channels:
@@ -317,6 +374,7 @@ class EpisodeRecorder:
         self._channels = _Channels(self._context)
         self._writer = None
         self._part: Path | None = None
+        self._part_lock: int | None = None  # an open descriptor of the .part holding its lock (`run_folder`)
         self._road_cache: tuple[Any, bytes] | None = None  # (road map, encoded /scene/road)
         self._model_cache: tuple[Any, dict] | None = None  # (model, per-model constants)
         self._cubes = proto.CubeListEncoder()
@@ -374,9 +432,12 @@ class EpisodeRecorder:
             if final.exists():
                 continue
             try:
-                os.close(os.open(part, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644))
+                descriptor = os.open(part, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
             except FileExistsError:
                 continue
+            # held until the file is published: while it is, the .part belongs to a live writer; once this
+            # process ends (even killed) the lock is gone and the next run may remove the file
+            self._part_lock = lock_part(descriptor)
             return part
         raise RuntimeError(f"no free file name for episode {self.episode} in {self.out_dir}")
 
@@ -512,6 +573,9 @@ class EpisodeRecorder:
         self._writer = None
         final = self._publish(self._part)
         self._part = None
+        if self._part_lock is not None:
+            os.close(self._part_lock)
+            self._part_lock = None
         self.paths.append(final)
         return final
 
@@ -521,6 +585,19 @@ class EpisodeRecorder:
         dt = self._control_dt or (self._prev_time - self._start_time) / max(self._steps, 1)
         metrics = self._comfort.metrics(dt) if dt > 0 else None
         return comfort_fields({} if metrics is None else dataclasses.asdict(metrics))
+
+    def abandon(self) -> Path | None:
+        """Stop writing the open episode without finishing it (after an error mid-episode): its `.part` stays,
+        readable up to its last chunk, unlocked, so the next run in the folder removes it; returns its path."""
+        part = self._part
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+        if self._part_lock is not None:
+            os.close(self._part_lock)
+            self._part_lock = None
+        self._part = None
+        return part
 
     def close(self) -> None:
         """End an open episode (interrupted) and free the camera renderer."""

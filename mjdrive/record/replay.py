@@ -31,18 +31,18 @@ class ReplayResult:
     path: Path
     steps: int
     checked: int
-    complete: bool  # the file was intact (an incomplete file is checked up to its damage)
+    complete: bool  # the file holds the whole episode (an incomplete file is checked up to its damage)
     mismatch_step: int | None = None  # first step whose state or reward differs (0: the reset state)
     mismatch_fields: list[str] = field(default_factory=list)
     max_abs_diff: dict[str, float] = field(default_factory=dict)
     video: Path | None = None
-    damage: str | None = None  # what is wrong with an incomplete file
+    damage: str | None = None  # what is wrong with a file that is incomplete or fails a CRC check
     version_changes: list[str] = field(default_factory=list)  # packages whose version differs from the log's
 
     @property
     def match(self) -> bool:
-        """Every logged step re-simulated identically, and the file was complete."""
-        return self.complete and self.mismatch_step is None and self.checked == self.steps
+        """Every logged step re-simulated identically, and the file was complete and passed its CRC checks."""
+        return self.complete and self.damage is None and self.mismatch_step is None and self.checked == self.steps
 
     def report(self) -> str:
         if self.mismatch_step is not None:
@@ -53,6 +53,8 @@ class ReplayResult:
             text = f"match: {self.checked} steps, every state (time, qpos, qvel, act, mocap) and reward bit for bit"
         if not self.complete:
             text = f"{self.damage}\nchecked only those steps: {text}; the episode cannot be fully verified"
+        elif self.damage is not None:
+            text = f"{self.damage}\n{text}; the file itself is damaged"
         if self.version_changes:
             text += f" (versions differ from the recording: {', '.join(self.version_changes)})"
         return f"replay {self.path}: {text}" + (f"; video {self.video}" if self.video else "")
@@ -102,7 +104,7 @@ def replay(path: str | Path, video: str | Path | None = None, progress: bool = F
 
             writer = EpisodeVideo(env, video)
         result = ReplayResult(Path(path), len(actions), 0, episode.complete, video=Path(video) if video else None,
-                              damage=None if episode.complete else episode.describe_damage())
+                              damage=None if episode.intact else episode.describe_damage())
         result.max_abs_diff = {name: 0.0 for name in (*STATE_FIELDS, "reward")}
         logged_versions = meta.get("versions") or {}
         result.version_changes = [f"{name} {logged_versions[name]} -> {version}"

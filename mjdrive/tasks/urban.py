@@ -35,7 +35,7 @@ from dm_env import specs
 
 from mjdrive import world
 from mjdrive.compiled import KERNELS
-from mjdrive.config import ConfigError, discrete_index, param
+from mjdrive.config import ConfigError, action_index, param
 from mjdrive.control.operative import OperativeConfig, OperativeLevel
 from mjdrive.control.speed_profile import route_speed_profile
 from mjdrive.roads import Lane
@@ -235,7 +235,8 @@ class UrbanTask(DrivingTask):
         if self.decisions is None:
             super().before_step(action, physics)
             return
-        index = discrete_index(action, self.decisions, f"urban/{self.name} decision")
+        index = action_index(action, len(self.decisions),
+                             f"urban/{self.name} decisions ({', '.join(self.decisions)})")
         self.decision = self.decisions[index]
         self.last_action = index
         self.ticks = []
