@@ -65,7 +65,7 @@ def test_a_websocket_client_sees_the_log_channels_and_receives_messages(tmp_path
     assert len(received["/ego/state"]) >= 10 and len(received["/action"]) >= 10
     assert "speed" in json.loads(received["/ego/state"][-1])
     actions = [json.loads(m) for m in received["/action"]]
-    assert actions[-1] == {"throttle": 0.3, "steer": 0.0, "brake": 0.0}
+    assert actions[-1] == {"throttle": 0.3, "steer": 0.0, "brake": 0.0, "decision": None, "name": None}
     assert received["/scene/road"]  # a client that joins mid-episode still gets the road
     episode = read_episode(env.recorder.paths[-1])  # the MCAP log was written all along
     assert len(episode.messages["/action"]) == 10

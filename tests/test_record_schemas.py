@@ -81,6 +81,28 @@ def test_every_json_message_of_every_task_matches_its_channel_schema(domain, tas
         assert not errors, "\n".join(errors[:20])
 
 
+@pytest.mark.parametrize("task", ["crossroad", "concatenated"])
+def test_the_operative_channels_of_a_decision_episode_match_their_schemas(task, tmp_path):
+    """The decision action set adds /operative and /operative/plan and logs the decision in /action."""
+    env = RecordEpisodes(make_env("urban", task, time_limit=4.0, decisions=True), tmp_path)
+    policy = make_policy("rules", env, 0)
+    observation, _ = env.reset(seed=0)
+    while True:
+        observation, _, terminated, truncated, _ = env.step(policy(observation))
+        if terminated or truncated:
+            break
+    ticks = env.unwrapped.task.control_ticks  # control periods per decision
+    env.close()
+    (path,) = sorted(tmp_path.glob("*.mcap"))
+    counts, errors = schema_errors(path)
+    assert {"/operative", "/operative/plan"} | KNOWN_JSON_CHANNELS <= set(counts), counts
+    assert ticks > 1 and counts["/operative"] == ticks * counts["/action"], counts
+    assert counts["/operative/plan"] == counts["/action"], counts
+    assert not errors, "\n".join(errors[:20])
+    action = json.loads(read_episode(path).messages["/action"][-1][1])
+    assert isinstance(action["decision"], int) and isinstance(action["name"], str)
+
+
 def test_the_schemas_are_strict_a_key_not_declared_or_a_wrong_type_fails(tmp_path):
     """The check above can fail: an undeclared key, a missing one, a null where none is allowed are errors."""
     env = RecordEpisodes(gym.make("mjdrive/Waypoints-Straight-v0", time_limit=0.5), tmp_path)

@@ -87,7 +87,7 @@ def run(task: str, policy: str, episodes: int, seed: int, workers: int = 0, ray:
     return [rows[i] for i in range(episodes)]
 
 
-DRIVER_NAMES = {"rules": "rules + operative level", "autopilot": "privileged autopilot"}
+DRIVER_NAMES = {"rules": "rules + operative level"}  # else the policy's name
 ENDS = ("success", "collision", "off_route", "time_limit")
 
 

@@ -77,7 +77,7 @@ class Episode:
         """(steps, 3) applied (throttle, steer, brake); for an env of the decision action set, (steps,) the
         decisions' indices."""
         messages = self.json("/action")
-        if messages and "decision" in messages[0]:
+        if messages and messages[0].get("decision") is not None:
             return np.array([a["decision"] for a in messages], dtype=np.int64)
         return np.array([[a["throttle"], a["steer"], a["brake"]] for a in messages]).reshape(-1, 3)
 

@@ -230,7 +230,12 @@ _EGO_STATE = _json_schema("mjdrive.EgoState", {
 }, "The ego's state after every step (and after the reset).")
 _ACTION = _json_schema("mjdrive.Action", {
     "throttle": _number("", "0..1"), "steer": _number("", "-1..1 (+ = left)"), "brake": _number("", "0..1"),
-}, "The (throttle, steer, brake) command the task applied at a step, exact float64.")
+    "decision": {"type": ["integer", "null"], "description": "urban tasks with `decisions`: the decision's index "
+                 "(the env's action; replay uses it); the commands are then the step's last control period's. "
+                 "null: a continuous action"},
+    "name": {"type": ["string", "null"], "description": "the decision's name (null: a continuous action)"},
+}, "The (throttle, steer, brake) command the task applied at a step, exact float64; the decision for the "
+   "decision action set.")
 _REWARD = _json_schema("mjdrive.Reward", {
     "reward": _number("", "the step's reward (the task's units)"), "return": _number("", "the sum so far"),
     "terms": {"type": "object", "additionalProperties": {"type": "number"},
@@ -313,19 +318,34 @@ class _SensorChannels:
         self.range = ch.LaserScanChannel("/sensors/range", context=context)
 
 
-_NUMBER_OR_NULL = ["number", "null"]
-_OPERATIVE = {"title": "mjdrive.OperativeStep", "type": "object", "properties": {
-    "t": {"type": "number"}, "route_s": {"type": "number"}, "route_offset": {"type": "number"},
-    "decision": {"type": "string"}, "mode": {"type": "string"},
-    "solver": {"type": "string"}, "throttle": {"type": "number"}, "steer": {"type": "number"},
-    "brake": {"type": "number"}, "accel_command": {"type": "number"}, "v_ref": {"type": "number"},
-    "stop": {"type": _NUMBER_OR_NULL}, "offset": {"type": "number"}, "target_offset": {"type": "number"},
-    "lateral_error": {"type": "number"}, "heading_error": {"type": "number"}, "leaders": {"type": "integer"},
-    "solve_ms": {"type": "number"}, "step_ms": {"type": "number"}}}
-_PLAN = {"title": "mjdrive.OperativePlan", "type": "object", "properties": {
-    "t": {"type": "array", "items": {"type": "number"}}, "s": {"type": "array", "items": {"type": "number"}},
-    "v": {"type": "array", "items": {"type": "number"}}, "a": {"type": "array", "items": {"type": "number"}},
-    "stop": {"type": _NUMBER_OR_NULL}, "mode": {"type": "string"}}}
+_OPERATIVE = _json_schema("mjdrive.OperativeStep", {
+    "t": _number("s", "simulated time"), "route_s": _number("m", "the ego's distance along the route"),
+    "route_offset": _number("m", "lateral offset from the route's centre line (+ = left)"),
+    "decision": {"type": "string", "description": "the decision applied (tasks/decisions.py ACTIONS)"},
+    "mode": {"type": "string", "description": "the MPC's binding constraint: cruise, follow, stop, emergency"},
+    "solver": {"type": "string", "description": "OSQP's status of the last solve (or fallback)"},
+    "throttle": _number("", "command, 0..1"), "steer": _number("", "command, -1..1 (+ = left)"),
+    "brake": _number("", "command, 0..1"),
+    "accel_command": _number("m/s^2", "the MPC's first acceleration"),
+    "v_ref": _number("m/s", "the speed reference (route profile, decision)"),
+    "stop": _number("m", "distance to the stop point ahead", nullable=True),
+    "offset": _number("m", "the lateral reference offset now (+ = left)"),
+    "target_offset": _number("m", "the lane offset the reference is heading for"),
+    "lateral_error": _number("m", "rear axle from the reference path"),
+    "heading_error": _number("rad", "heading minus the reference path's"),
+    "leaders": {"type": "integer", "description": "road users the MPC follows"},
+    "solve_ms": _number("ms", "the MPC's solve time (wall clock)"),
+    "step_ms": _number("ms", "the whole control period's computation (wall clock)"),
+}, "The operative level's state every control period (10 Hz) of an urban task with `decisions`.")
+_FLOATS = {"type": "array", "items": {"type": "number"}}
+_PLAN = _json_schema("mjdrive.OperativePlan", {
+    "t": {**_FLOATS, "description": "the horizon's times from now [s]"},
+    "s": {**_FLOATS, "description": "planned distance travelled [m]"},
+    "v": {**_FLOATS, "description": "planned speed [m/s]"},
+    "a": {**_FLOATS, "description": "planned acceleration [m/s^2]"},
+    "stop": _number("m", "distance to the stop point ahead", nullable=True),
+    "mode": {"type": "string", "description": "the MPC's binding constraint"},
+}, "The MPC's last plan at every env step of an urban task with `decisions`.")
 PLAN_RGBA = (0.2, 0.9, 0.4, 0.9)  # the lateral path the operative level tracks, in the 3D scene
 STOP_RGBA = (0.95, 0.2, 0.2, 1.0)  # the MPC's stop point
 
@@ -528,7 +548,8 @@ class EpisodeRecorder:
         decisions = getattr(task, "decisions", None)
         if decisions is None:
             a0, a1, a2 = float(action[0]), float(action[1]), float(action[2])
-            ch.action.log(json.dumps({"throttle": a0, "steer": a1, "brake": a2}).encode(), action_ns)
+            ch.action.log(json.dumps({"throttle": a0, "steer": a1, "brake": a2, "decision": None,
+                                      "name": None}).encode(), action_ns)
         else:  # the decision, for replay, and the last control period's commands
             last = task.ticks[-1] if task.ticks else {"throttle": 0.0, "steer": 0.0, "brake": 0.0}
             a0, a1, a2 = float(last["throttle"]), float(last["steer"]), float(last["brake"])
