@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 import mujoco
 import numpy as np
 
-from mjdrive.compiled import KERNELS
+from mjdrive.compiled import INTERPRETED
 from mjdrive.compiled import jit as _jit
 from mjdrive.sensors import CollisionSensor
 
@@ -35,7 +35,7 @@ if TYPE_CHECKING:
 
 DONE, CALLBACK = 0, 1  # the kernel's status: every chunk stepped; the last chunk needs the Python callback
 
-if KERNELS:
+if not INTERPRETED:
     from llvmlite import ir
     from numba import types
     from numba.extending import intrinsic
@@ -50,9 +50,12 @@ if KERNELS:
                          [builder.inttoptr(args[1], pointer), builder.inttoptr(args[2], pointer)])
             return context.get_dummy_value()
         return types.void(types.intp, types.intp, types.intp), codegen
-else:  # never called: `ChunkRunner.of` gives no runner without kernels
+else:  # the same call from Python
+    _MJ_STEP = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_void_p)
+
     def _call_mj_step(fn, model, data):
-        raise RuntimeError("compiled chunks need numba")
+        """Call `void mj_step(const mjModel*, mjData*)` at address `fn` (all three addresses as integers)."""
+        _MJ_STEP(fn)(model, data)
 
 
 def mj_step_address() -> int:
@@ -121,7 +124,7 @@ class ChunkRunner:
     def of(cls, collision_sensor: CollisionSensor, traffic: Traffic | None) -> ChunkRunner | None:
         """A runner where it can work (numba installed and on, MuJoCo's `mj_step` found, the ego's contact
         sensors in the world), else None (`Physics.advance` then runs the chunks in Python)."""
-        if not KERNELS or collision_sensor.contact_sensors is None or traffic is not None and traffic.mocap_ids is None:
+        if collision_sensor.contact_sensors is None or traffic is not None and traffic.mocap_ids is None:
             return None
         step_fn = _step_address()
         return cls(collision_sensor, traffic, step_fn) if step_fn else None

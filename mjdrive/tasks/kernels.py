@@ -1,10 +1,5 @@
 """Compiled parts of the tasks' per-step work (numba, `mjdrive.compiled`): the nearest road users' rows, the
-roundabout and urban tasks' ego updates, the urban task's features.
-
-Each kernel repeats the numpy code of its task operation for operation (the tasks keep that code, which runs
-without numba; tests/test_task_kernels.py holds the two to the same bits). Sines, cosines and hypot are libm's in
-both: numpy (>= 1.25) has no vectorised float64 sine or cosine (it disabled them for their rounding), and no
-vectorised hypot; numba calls libm.
+roundabout and urban tasks' ego updates, the urban task's ego features. Sines, cosines and hypot are libm's.
 """
 
 from __future__ import annotations
@@ -139,22 +134,11 @@ def _unit(v: float) -> float:
 
 
 @jit
-def urban_features(ego: np.ndarray, adversaries: np.ndarray, speed: float, heading_error: float, lane_offset: float,
-                   route_s: float, off_route: float, route_end: float, speed_scale: float, scenario: int,
-                   at_ego: bool, point_s: np.ndarray, point_scenario: np.ndarray, points: np.ndarray, x: float,
-                   y: float, present: np.ndarray, positions: np.ndarray, speeds: np.ndarray,
-                   intentions: np.ndarray, column: int, distance_scale: float) -> None:
-    """The urban task's `_ego_vector` into `ego` (4,) float32 and `adversary_matrix` into `adversaries` (n, 4)
-    float32 (zeros): distances from the first conflict point (points (C, 2) [m] at route position point_s [m]) of
-    the active scenario no more than 2 m behind the ego, or from the ego (x, y) [m] (`at_ego`, or none)."""
-    ego[0] = _unit(speed / speed_scale)
-    ego[1] = _unit((heading_error + math.pi) / (2 * math.pi))
-    ego[2] = _unit((lane_offset / off_route + 1.0) / 2.0)
-    ego[3] = _unit(route_s / route_end)
-    px, py = x, y
-    if not at_ego:
-        for j in range(point_s.shape[0]):
-            if point_s[j] >= route_s - 2.0 and point_scenario[j] == scenario:
-                px, py = points[j, 0], points[j, 1]
-                break
-    adversary_rows(adversaries, present, positions, px, py, speeds, intentions, column, distance_scale, speed_scale)
+def ego_features(out: np.ndarray, speed: float, heading_error: float, lane_offset: float, route_s: float,
+                 off_route: float, route_end: float, speed_scale: float) -> None:
+    """The urban task's ego features into `out` (4,) float32, each clipped to [0, 1]: speed / speed_scale [m/s],
+    (heading error [rad] + pi) / 2 pi, (lane offset / off_route [m] + 1) / 2, route_s / route_end [m]."""
+    out[0] = _unit(speed / speed_scale)
+    out[1] = _unit((heading_error + math.pi) / (2 * math.pi))
+    out[2] = _unit((lane_offset / off_route + 1.0) / 2.0)
+    out[3] = _unit(route_s / route_end)

@@ -59,10 +59,8 @@ from dm_control.utils import containers
 from dm_env import specs
 
 from mjdrive import roads, world
-from mjdrive.compiled import KERNELS
 from mjdrive.config import ConfigError, param
 from mjdrive.roads import Lane, RoadMap
-from mjdrive.roads.geometry import footprint, wrap_angle
 from mjdrive.roads.route_frame import RouteFrame
 from mjdrive.tasks import kernels
 from mjdrive.tasks.base import (
@@ -246,31 +244,19 @@ class RoundaboutTask(DrivingTask):
         return EgoState(x, y, yaw, speed, self.params.length, self.params.width, path, s_lane)
 
     def _update_ego(self, physics: Physics) -> None:
-        data = physics.raw_data
-        if KERNELS:  # the same numbers in one compiled pass
-            frame = self.route_frame
-            lo, hi = frame.window()
-            qa, va = self.vehicle.state_addresses
-            self.corners, self.corner_offsets = self._corner_buffers  # filled in place: read within this step only
-            (x, y, yaw, self.speed, self._left, self.yaw_rate, c, s, self.route_s, self.lane_offset, frame.segment,
-             self.heading_error) = kernels.roundabout_ego(
-                data.qpos, data.qvel, qa, va, self.params.length, self.params.width, frame.x0, frame.y0, frame.tx,
-                frame.ty, frame.length, frame.s0, lo, hi, self.corners, self.corner_offsets)
-            self._chassis = yaw, self.speed, self._left  # `read_chassis`' hand-over to the comfort sample
-            self.xy, self.yaw, self._yaw_cos_sin = np.array([x, y]), yaw, (c, s)
-            self._frame_time = data.time
-            return
-        x, y, yaw, self.speed, self._left, self.yaw_rate = self.read_chassis(data)  # [m/s], [rad/s]
-        self.xy, self.yaw = np.array([x, y]), yaw
-        self._yaw_cos_sin = math.cos(yaw), math.sin(yaw)  # (libm's, as numpy's) for the footprint and observation
-        points = footprint(x, y, yaw, self.params.length, self.params.width, centre=True, cos_sin=self._yaw_cos_sin)
-        self.corners = points[1:]  # (4,2) [m]
-        s, d = self.route_frame(points)
-        self.route_s, self.lane_offset = float(s[0]), float(d[0])  # [m]
-        self.corner_offsets = d[1:]  # [m] of the footprint corners from the route centre line
+        """The ego's chassis state, footprint, route coordinates (its centre's and its corners') and heading error (in
+        one compiled pass)."""
+        data, frame = physics.raw_data, self.route_frame
+        lo, hi = frame.window()
+        qa, va = self.vehicle.state_addresses
+        self.corners, self.corner_offsets = self._corner_buffers  # filled in place: read within this step only
+        (x, y, yaw, self.speed, self._left, self.yaw_rate, c, s, self.route_s, self.lane_offset, frame.segment,
+         self.heading_error) = kernels.roundabout_ego(
+            data.qpos, data.qvel, qa, va, self.params.length, self.params.width, frame.x0, frame.y0, frame.tx,
+            frame.ty, frame.length, frame.s0, lo, hi, self.corners, self.corner_offsets)
+        self._chassis = yaw, self.speed, self._left  # `read_chassis`' hand-over to the comfort sample
+        self.xy, self.yaw, self._yaw_cos_sin = np.array([x, y]), yaw, (c, s)
         self._frame_time = data.time
-        tangent = self.route_frame.tangent[self.route_frame.segment]
-        self.heading_error = float(wrap_angle(yaw - math.atan2(tangent[1], tangent[0])))  # [rad]
 
     def _remaining(self) -> float:
         """Route distance [m] from the ego to the destination."""
@@ -394,25 +380,9 @@ class RoundaboutTask(DrivingTask):
             return out
         c, s = self._yaw_cos_sin
         vx, vy = self.speed, self._left  # `Vehicle.velocity_body`'s numbers, read with the pose
-        if KERNELS:  # the same rows in one compiled pass
-            kernels.road_user_rows(out, traffic.positions(), present, float(self.xy[0]), float(self.xy[1]), float(c),
-                                   float(s), vx, vy, traffic.speeds(), traffic.yaws(), float(self.yaw), self._lengths,
-                                   self._kind_onehot)
-            return out
-        rel = traffic.positions()[present] - self.xy
-        dist2 = rel[:, 0] ** 2 + rel[:, 1] ** 2
-        k = min(self.neighbours, len(present))
-        order = np.argsort(dist2, kind="stable")[:k]
-        idx = present[order]
-        speed, yaw = traffic.speeds()[idx], traffic.yaws()[idx]
-        dyaw = yaw - self.yaw
-        r = rel[order]
-        out[:k, 0] = 1.0
-        out[:k, 1], out[:k, 2] = c * r[:, 0] + s * r[:, 1], -s * r[:, 0] + c * r[:, 1]
-        out[:k, 3], out[:k, 4] = speed * np.cos(dyaw) - vx, speed * np.sin(dyaw) - vy
-        out[:k, 5], out[:k, 6] = np.cos(dyaw), np.sin(dyaw)
-        out[:k, 7:9] = self._lengths[idx]
-        out[:k, 9:] = self._kind_onehot[idx]
+        kernels.road_user_rows(out, traffic.positions(), present, float(self.xy[0]), float(self.xy[1]), float(c),
+                               float(s), vx, vy, traffic.speeds(), traffic.yaws(), float(self.yaw), self._lengths,
+                               self._kind_onehot)
         return out
 
 

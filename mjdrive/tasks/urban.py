@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import collections
 import functools
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,10 +33,8 @@ from dm_control.utils import containers
 from dm_env import specs
 
 from mjdrive import world
-from mjdrive.compiled import KERNELS
 from mjdrive.config import ConfigError, param
 from mjdrive.roads import Lane
-from mjdrive.roads.geometry import wrap_angle
 from mjdrive.roads.ports import ComposedMap
 from mjdrive.roads.route_frame import RouteFrame
 from mjdrive.roads.urban import FOLLOW, UrbanRoute, concatenated, route_offsets, route_through
@@ -61,8 +58,6 @@ CONTROL_TIMESTEP = 0.1  # [s] 10 Hz
 SCENARIOS = (FOLLOW, "roundabout", "lane_change", "crossroad", "merge")  # the scenario one-hot, in order
 _SCENARIO_ONE_HOT = {name: np.eye(len(SCENARIOS), dtype=np.float32)[i] for i, name in enumerate(SCENARIOS)}
 _NO_INTENTIONS = np.zeros((0, len(INTENTION_SCENARIOS)), np.int64)  # the adversary rows' outside intention scenarios
-_SCENARIO_CODE = {name: i for i, name in enumerate(SCENARIOS)}
-_INTENTION_COLUMN = {name: i for i, name in enumerate(INTENTION_SCENARIOS)}  # the intentions' column by scenario
 PIECES = {"roundabout": ("roundabout",), "lane_change": ("road",), "crossroad": ("crossroad",),
           "merge": ("merge",), "concatenated": ("roundabout", "road", "crossroad", "merge")}
 SPEED_SCALE = 15.0  # [m/s] speeds normalised by this (§5.3's top speed)
@@ -121,12 +116,11 @@ class UrbanTask(DrivingTask):
         self._points = np.asarray(route.conflicts.point)[rc.zone] if len(rc) else np.zeros((0, 2))
         self._point_s = np.asarray(rc.s_point, dtype=float)
         self._point_scenario = np.array([route.tactical.scenario_at(s) for s in self._point_s])
-        # for the kernels: the tactical intervals as arrays, scenarios as their index in SCENARIOS
+        # for the kernels: the tactical intervals as arrays
         intervals = route.tactical.intervals
         self._interval_starts = np.array([s0 for _, s0, _ in intervals], dtype=float)  # [m]
         self._interval_ends = np.array([s1 for _, _, s1 in intervals], dtype=float)  # [m]
         self._interval_names = [name for name, _, _ in intervals] + [FOLLOW]  # index -1: outside every interval
-        self._point_code = np.array([_SCENARIO_CODE[name] for name in self._point_scenario], dtype=np.int64)
 
     # --- episode ----------------------------------------------------------------------------------------
     def initialize_episode(self, physics: Physics) -> None:
@@ -175,24 +169,17 @@ class UrbanTask(DrivingTask):
         return EgoState(x, y, yaw, speed, self.params.length, self.params.width, path, s_lane)
 
     def _update_ego(self, physics: Physics) -> None:
-        if KERNELS:  # the same numbers in one compiled pass
-            data, frame = physics.raw_data, self.route_frame
-            lo, hi = frame.window()
-            qa, va = self.vehicle.state_addresses
-            (x, y, yaw, self.speed, left, self.yaw_rate, self.route_s, self.lane_offset, frame.segment, k,
-             self.heading_error) = kernels.urban_ego(data.qpos, data.qvel, qa, va, frame.x0, frame.y0, frame.tx,
-                                                     frame.ty, frame.length, frame.s0, lo, hi,
-                                                     self._interval_starts, self._interval_ends)
-            self._chassis = yaw, self.speed, left  # `read_chassis`' hand-over to the comfort sample
-            self.xy, self._position, self.yaw = np.array([x, y]), (x, y), yaw
-            self.scenario = self._interval_names[k]
-            return
-        x, y, yaw, self.speed, _, self.yaw_rate = self.read_chassis(physics.raw_data)
+        """The ego's chassis state, route coordinates, heading error and active scenario (in one compiled pass)."""
+        data, frame = physics.raw_data, self.route_frame
+        lo, hi = frame.window()
+        qa, va = self.vehicle.state_addresses
+        (x, y, yaw, self.speed, left, self.yaw_rate, self.route_s, self.lane_offset, frame.segment, k,
+         self.heading_error) = kernels.urban_ego(data.qpos, data.qvel, qa, va, frame.x0, frame.y0, frame.tx, frame.ty,
+                                                 frame.length, frame.s0, lo, hi, self._interval_starts,
+                                                 self._interval_ends)
+        self._chassis = yaw, self.speed, left  # `read_chassis`' hand-over to the comfort sample
         self.xy, self._position, self.yaw = np.array([x, y]), (x, y), yaw
-        self.route_s, self.lane_offset = self.route_frame.point(x, y)  # [m]
-        self.scenario = self.urban.tactical.scenario_at(self.route_s)  # the active scenario
-        tangent = self.route_frame.tangent[self.route_frame.segment]
-        self.heading_error = float(wrap_angle(yaw - math.atan2(tangent[1], tangent[0])))  # [rad]
+        self.scenario = self._interval_names[k]
 
     def active_scenario(self) -> str:
         """The tactical trajectory's scenario at the ego's place on the route."""
@@ -249,11 +236,11 @@ class UrbanTask(DrivingTask):
         return spec
 
     def _ego_vector(self) -> np.ndarray:
-        a, b = self.speed / SPEED_SCALE, (self.heading_error + math.pi) / (2 * math.pi)
-        c, d = (self.lane_offset / self.config.off_route + 1.0) / 2.0, self.route_s / self.route_end
-        # clipped before the float32 cast, the same numbers as np.clip after it (0 and 1 are exact; NaN stays)
-        return np.array((min(max(a, 0.0), 1.0), min(max(b, 0.0), 1.0), min(max(c, 0.0), 1.0), min(max(d, 0.0), 1.0)),
-                        np.float32)
+        """(4,) the ego's features in [0, 1] (module docstring)."""
+        out = np.empty(4, np.float32)
+        kernels.ego_features(out, self.speed, self.heading_error, self.lane_offset, self.route_s, self.config.off_route,
+                             self.route_end, SPEED_SCALE)
+        return out
 
     def relevant_point(self) -> np.ndarray:
         """Where adversaries' distances are measured (§5.1.2): the next conflict point on the route within
@@ -271,41 +258,12 @@ class UrbanTask(DrivingTask):
         point = self.relevant_point()
         scenario = self.scenario
         column = INTENTION_SCENARIOS.index(scenario) if scenario in INTENTION_SCENARIOS else None
-        if KERNELS:  # the same rows in one compiled pass
-            kernels.adversary_rows(out, traffic.present, traffic.positions(), float(point[0]), float(point[1]),
-                                   traffic.speeds(), traffic.intentions() if column is not None else _NO_INTENTIONS,
-                                   -1 if column is None else column, DISTANCE_SCALE, SPEED_SCALE)
-            return out
-        present = np.flatnonzero(traffic.present)
-        if not len(present):
-            return out
-        rel = traffic.positions()[present] - point
-        dist = np.hypot(rel[:, 0], rel[:, 1])
-        k = min(n, len(present))
-        order = np.argsort(dist, kind="stable")[:k]
-        idx = present[order]
-        out[:k, 0] = 1.0
-        out[:k, 1] = np.minimum(dist[order] / DISTANCE_SCALE, 1.0)
-        out[:k, 2] = np.minimum(traffic.speeds()[idx] / SPEED_SCALE, 1.0)
-        if column is not None:
-            out[:k, 3] = np.maximum(traffic.intentions()[idx, column], 0) / 2.0
+        kernels.adversary_rows(out, traffic.present, traffic.positions(), float(point[0]), float(point[1]),
+                               traffic.speeds(), traffic.intentions() if column is not None else _NO_INTENTIONS,
+                               -1 if column is None else column, DISTANCE_SCALE, SPEED_SCALE)
         return out
 
     def get_observation(self, physics: Physics) -> collections.OrderedDict:
-        if self.observation != "camera" and KERNELS:  # the same features in one compiled pass
-            rows = np.zeros((self.config.adversaries, ADVERSARY_COLUMNS), np.float32)
-            obs = collections.OrderedDict(ego=np.empty(4, np.float32), scenario=_SCENARIO_ONE_HOT[self.scenario].copy(),
-                                          adversaries=rows)
-            traffic, scenario = self.traffic, self.scenario
-            column = _INTENTION_COLUMN.get(scenario, -1)
-            kernels.urban_features(obs["ego"], obs["adversaries"], self.speed, self.heading_error, self.lane_offset,
-                                   self.route_s, self.config.off_route, self.route_end, SPEED_SCALE,
-                                   _SCENARIO_CODE[scenario], scenario in (FOLLOW, "lane_change"), self._point_s,
-                                   self._point_code, self._points, *self._position,
-                                   traffic.present, traffic.positions(), traffic.speeds(),
-                                   traffic.intentions() if column >= 0 else _NO_INTENTIONS, column, DISTANCE_SCALE)
-            obs.update(self.sensor_observation(physics))
-            return obs
         ego = self._ego_vector()
         if self.observation == "camera":
             size = self.config.image_size

@@ -1,9 +1,10 @@
-"""Compile the traffic's kernels (`kernels`, `state_kernels`) and the route frame's into the on-disk cache, by
-running a route frame and a few decisions of roundabout and urban traffic; `python -m mjdrive.envs.compile_kernels`
-(which `make install` runs) calls it, then compiles the tasks' kernels."""
+"""Compile the traffic's kernels and the route frame's into the on-disk cache, by running a route frame and a few
+decisions of roundabout and urban traffic; `python -m mjdrive.envs.compile_kernels` (which `make install` runs)
+calls it, then compiles the tasks' kernels."""
 
 from __future__ import annotations
 
+import sys
 import time
 
 import numpy as np
@@ -11,10 +12,14 @@ import numpy as np
 from mjdrive import roads
 from mjdrive.roads.lane import Lane
 from mjdrive.roads.route_frame import RouteFrame
-from mjdrive.traffic import kernels, state_kernels
+from mjdrive.traffic import conflicts, following, intentions, lane_changes, lanes, merges, motion, pedestrians, spawning
+from mjdrive.traffic import state as traffic_state
 from mjdrive.traffic.model import Traffic
 from mjdrive.traffic.params import counts_to_kinds
 from mjdrive.traffic.urban import urban_traffic
+
+MODULES = (traffic_state, lanes, intentions, motion, following, conflicts, merges, lane_changes, pedestrians,
+           spawning)
 
 
 def compile_kernels() -> float:
@@ -32,13 +37,16 @@ def compile_kernels() -> float:
         traffic.reset(np.random.default_rng(0), density=0.5)
         for _ in range(3):
             traffic.advance(traffic.config.decision_period)
-        traffic._choose_successor(traffic.path[:, 0].copy())  # a successor without intentions (a lane change's)
     return time.perf_counter() - start
 
 
 def uncompiled() -> list[str]:
-    """The traffic's kernels (those called from Python) this process has not compiled (or loaded) yet: none after
-    `compile_kernels`."""
-    return [f"{module.__name__}.{name}" for module in (kernels, state_kernels) for name, fn in vars(module).items()
-            if hasattr(fn, "signatures") and not name.startswith("_") and fn.py_func.__module__ == module.__name__
-            and not fn.signatures]
+    """The traffic's kernels this process has not compiled (or loaded) yet: none after `compile_kernels`."""
+    return [f"{module.__name__}.{name}" for module in MODULES for name, fn in vars(module).items()
+            if hasattr(fn, "signatures") and fn.py_func.__module__ == module.__name__ and not fn.signatures
+            and not getattr(fn, "targetoptions", {}).get("inline") == "always"]
+
+
+if __name__ == "__main__":
+    print(f"{compile_kernels():.1f} s; not compiled: {uncompiled() or 'none'}")
+    sys.exit(0)

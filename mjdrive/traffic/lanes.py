@@ -1,24 +1,80 @@
 """Build-time tables of a RoadMap for traffic: every lane polyline in flat arrays, successors,
-same-direction neighbours, merges (where entering lanes yield), crosswalk crossings and spawn points.
+same-direction neighbours, merges (where entering lanes yield), crosswalk crossings and spawn points; and the
+kernels that read a lane's polyline (`centre_point`, `curve_speed`).
 
-Everything here is computed once per map (Python loops over lanes and crosswalks are fine at build time);
-`TrafficMap.lookup` then turns (lane, s) arrays of any shape into poses with one `searchsorted`.
+Everything here is computed once per map (Python loops over lanes and crosswalks are fine at build time); the
+kernels take the tables as NamedTuples (`LaneTables`, `Crossings`, `Merges`).
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
+from mjdrive.compiled import inline, jit, maximum, minimum
 from mjdrive.roads import Marking, RoadMap, spawn_points
 from mjdrive.roads.geometry import BOX_CORNERS, box_points
-from mjdrive.traffic import kernels
-from mjdrive.traffic.kernels import KERNELS
 
 LANE_GAP = 1.0  # [m] gap between consecutive lanes in the flat arc-length coordinate
 REFERENCE_HALF_SIZE = (2.4, 1.0)  # [m] half length and half width of the largest vehicle (stop lines)
 STOP_CLEARANCE = 1.0  # [m] a vehicle waiting at a merge stop line stays this far outside the priority lane
 SPAWN_STEP = 3.0  # [m] candidate spawn points along each lane
 SPAWN_MARGIN = 5.0  # [m] from the lane ends
+
+
+class LaneTables(NamedTuple):
+    """Every lane (L,) of a TrafficMap, for kernels: size, graph, flat polyline and curve speeds (the map's
+    attributes of the same names; per vertex or segment: g, inv ... dk)."""
+
+    length: np.ndarray  # [m]
+    width: np.ndarray  # [m]
+    speed_limit: np.ndarray  # [m/s]
+    successors: np.ndarray  # (L, W) int, -1 padded
+    n_successors: np.ndarray  # int
+    right: np.ndarray  # int: the same-direction neighbour a vehicle may change to (-1: none)
+    left: np.ndarray  # int
+    ends_at_merge: np.ndarray  # bool
+    starts_at_merge: np.ndarray  # bool
+    ending: np.ndarray  # bool: ends beside a neighbour that goes on (an on-ramp)
+    in_junction: np.ndarray  # bool
+    base: np.ndarray  # [m] the lane's start in the flat arc-length coordinate
+    first: np.ndarray  # int: the lane's first vertex
+    last_segment: np.ndarray  # int: the lane's last segment
+    g: np.ndarray  # (V,) [m] flat arc length of every vertex
+    inv: np.ndarray  # (V - 1,) [1/m] 1 / segment length
+    x0: np.ndarray  # (V - 1,) [m] segment start and step, x
+    dx: np.ndarray
+    y0: np.ndarray  # ... y [m]
+    dy: np.ndarray
+    h0: np.ndarray  # ... heading [rad]
+    dh: np.ndarray
+    v0: np.ndarray  # ... curve speed [m/s]
+    dv: np.ndarray
+    k0: np.ndarray  # ... curvature [1/m]
+    dk: np.ndarray
+    entry_speed: np.ndarray  # [m/s] the curve speed at each lane's start, anticipating its successors
+    anticipation: float  # [m/s^2] braking for the curves ahead
+
+
+class Crossings(NamedTuple):
+    """Where lanes cross crosswalks (K,), and the crosswalks' centres (C, 2) [m]."""
+
+    lane: np.ndarray  # int
+    s: np.ndarray  # (K, 2) [m] interval along the lane
+    crosswalk: np.ndarray  # int
+    u: np.ndarray  # (K, 2) [m] the lane's strip along the crosswalk
+    centre: np.ndarray  # (C, 2) [m]
+
+
+class Merges(NamedTuple):
+    """Roundabout entries (Y,): the entering lane, its stop line [m] (front bumper), the lane it joins and that
+    lane's start (the merge point) (Y, 2) [m]."""
+
+    lane: np.ndarray
+    stop: np.ndarray
+    merge: np.ndarray
+    xy: np.ndarray
 
 
 def polyline_distance(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
@@ -57,13 +113,18 @@ class TrafficMap:
         self._flatten()
         self._graph()
         self._curve_speed(lateral_accel, anticipation)
-        self._merges()
-        self._crossings()
-        self._spawn_points()
+        self._find_merges()
+        self._find_crossings()
         goes_on = lambda lane: (lane >= 0) & (self.n_successors[np.maximum(lane, 0)] > 0)  # noqa: E731
         # (L,) lanes without successors beside a same-direction neighbour that goes on (an on-ramp; not the
         # lanes of a road leaving the map, which all end)
         self.ending = (self.n_successors == 0) & (goes_on(self.left) | goes_on(self.right))
+        self.lane_tables = LaneTables(*(getattr(self, name) for name in LaneTables._fields[:11]), self.base, self.first,
+                                self.last_segment, self.g, self._inv, self._x0, self._dx, self._y0, self._dy, self._h0,
+                                self._dh, self._v0, self._dv, self._k0, self._dk, self.entry_speed, self.anticipation)
+        self.crossings = Crossings(self.cross_lane, self.cross_s, self.cross_cw, self.cross_u, self.cw_centre)
+        self.merges = Merges(self.yield_lane, self.yield_stop, self.yield_merge, self.merge_xy)
+        self._spawn_points()
 
     # --- flat polylines --------------------------------------------------------------------------------
     def _flatten(self) -> None:
@@ -85,32 +146,17 @@ class TrafficMap:
         self._h0, self._dh = h[:-1], np.diff(h)
         self._k0, self._dk = k[:-1], np.diff(k)
 
-    def _segment(self, lane: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        gq = self.base[lane] + np.minimum(np.maximum(s, 0.0), self.length[lane])
-        i = np.searchsorted(self.g, gq, side="right") - 1
-        i = np.minimum(np.maximum(i, self.first[lane]), self.last_segment[lane])
-        return i, (gq - self.g[i]) * self._inv[i]
-
-    def lookup(self, lane: np.ndarray, s: np.ndarray, curvature: bool = False):
-        """Centre-line x, y [m] and heading [rad] (and curvature [1/m]) at arc length s [m] on `lane`
-        (arrays of one shape; s is clamped to the lane)."""
-        i, t = self._segment(lane, s)
-        x = self._x0[i] + t * self._dx[i]
-        y = self._y0[i] + t * self._dy[i]
-        h = self._h0[i] + t * self._dh[i]
-        if curvature:
-            return x, y, h, self._k0[i] + t * self._dk[i]
-        return x, y, h
+    def lookup(self, lane: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Centre-line x, y [m] and heading [rad] at arc length s [m] on `lane` (arrays of one shape; s is clamped
+        to the lane)."""
+        lane, s = np.broadcast_arrays(np.asarray(lane, dtype=np.int64), np.asarray(s, dtype=float))
+        x, y, h = centre_points(self.lane_tables, lane.ravel(), s.ravel())
+        return x.reshape(lane.shape), y.reshape(lane.shape), h.reshape(lane.shape)
 
     def curve_speed(self, lane: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Curve speed [m/s] anticipating the curves ahead on `lane` (at `anticipation` deceleration; add
-        those of the next lane with `entry_speed`), and the curvature [1/m], at arc length s [m] on `lane`
-        ((F,) arrays; `kernels.curve_speed` with numba: the same numbers)."""
-        if KERNELS:
-            return kernels.curve_speed(lane, s, self.base, self.length, self.first, self.last_segment, self.g,
-                                       self._inv, self._v0, self._dv, self._k0, self._dk)
-        i, t = self._segment(lane, s)
-        return self._v0[i] + t * self._dv[i], self._k0[i] + t * self._dk[i]
+        """Curve speed [m/s] anticipating the curves ahead on `lane` and the curvature [1/m] at arc length s [m] on
+        `lane` ((F,) arrays; `curve_speed`)."""
+        return curve_speed(self.lane_tables, lane, s)
 
     def _curve_speed(self, lateral_accel: float, anticipation: float) -> None:
         """Per vertex: the highest speed from which every curve ahead (this lane and, at its end, the slowest
@@ -163,7 +209,7 @@ class TrafficMap:
                 self.left[i] = left
 
     # --- merges ------------------------------------------------------------------------------------------
-    def _merges(self) -> None:
+    def _find_merges(self) -> None:
         """Junction lanes (entries) that join a lane which also continues a non-junction lane (the ring)
         yield there; each gets a stop line: the farthest front-bumper position [m] along it from which a
         vehicle stays STOP_CLEARANCE outside the priority lanes."""
@@ -211,7 +257,7 @@ class TrafficMap:
             self.merge_xy = self.merge_xy[:0]
 
     # --- crosswalks --------------------------------------------------------------------------------------
-    def _crossings(self) -> None:
+    def _find_crossings(self) -> None:
         """Where lane centre lines cross crosswalks: lane, s interval [m], crosswalk, u interval [m] (the
         lane's strip in the crosswalk's walking coordinate u, 0 at the crosswalk centre)."""
         rm = self.road_map
@@ -266,3 +312,58 @@ class TrafficMap:
         self.spawn_lane = lane[keep].astype(np.int64)
         self.spawn_s = s[keep]
         self.spawn_xy = np.column_stack([x[keep], y[keep]])
+
+
+@inline
+def find_segment(g, gq: float, first: int, last: int) -> int:
+    """The segment (first..last: a lane's) holding flat arc length gq [m]: np.searchsorted(g, gq, side="right") - 1
+    clamped to [first, last], searched among the lane's own vertices (the same index: g is sorted, so the vertices
+    before `first` and after `last` only move the unclamped index outside [first, last])."""
+    if gq != gq:  # NaN sorts past the end
+        return last
+    lo, hi = first, last + 1
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if g[mid] <= gq:
+            lo = mid + 1
+        else:
+            hi = mid
+    return max(lo - 1, first)
+
+
+@inline
+def flat_position(lanes, lane: int, s: float) -> float:
+    """The flat arc length [m] of s [m] on `lane`, s clamped to the lane (NaN kept)."""
+    return lanes.base[lane] + minimum(maximum(s, 0.0), lanes.length[lane])
+
+
+@jit
+def centre_points(lanes, lane, s):
+    """Centre-line x, y [m] and heading [rad] (K,) at s (K,) [m] on `lane` (K,) (s clamped to the lane)."""
+    n = len(s)
+    x, y, h = np.empty(n), np.empty(n), np.empty(n)
+    for k in range(n):
+        gq = flat_position(lanes, lane[k], s[k])
+        seg = find_segment(lanes.g, gq, lanes.first[lane[k]], lanes.last_segment[lane[k]])
+        u = (gq - lanes.g[seg]) * lanes.inv[seg]
+        x[k] = lanes.x0[seg] + u * lanes.dx[seg]
+        y[k] = lanes.y0[seg] + u * lanes.dy[seg]
+        h[k] = lanes.h0[seg] + u * lanes.dh[seg]
+    return x, y, h
+
+
+@jit
+def curve_speed(lanes, lane, s):
+    """The anticipated curve speed [m/s] (the curves ahead on `lane`, at `anticipation` braking; the next lane's
+    are added with `entry_speed`) and the curvature [1/m] (F,) at s (F,) [m] on `lane` (F,)."""
+    n = len(s)
+    speed = np.empty(n)
+    kappa = np.empty(n)
+    for f in range(n):
+        gq = flat_position(lanes, lane[f], s[f])
+        seg = find_segment(lanes.g, gq, lanes.first[lane[f]], lanes.last_segment[lane[f]])
+        u = (gq - lanes.g[seg]) * lanes.inv[seg]
+        speed[f] = lanes.v0[seg] + u * lanes.dv[seg]
+        kappa[f] = lanes.k0[seg] + u * lanes.dk[seg]
+    return speed, kappa
+

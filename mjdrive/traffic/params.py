@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -109,6 +110,9 @@ class TrafficConfig(Config):
     decision_period: float = param(0.6, "behaviour updates (about a driver's reaction time)", "s", gt=0.0, le=5.0)
     substep: float = param(0.02, "pose resolution (mocap written at this period)", "s", gt=0.0, le=0.2)
 
+    def constants(self) -> Constants:
+        return Constants(*(float(getattr(self, name)) for name in Constants._fields))
+
     def check(self) -> None:
         for name in ("pedestrian_wait", "desired_speed"):
             pair = getattr(self, name)
@@ -117,6 +121,31 @@ class TrafficConfig(Config):
         for name in ("lane_change_intentions", "turn_intentions", "merge_intentions", "roundabout_intentions"):
             if sum(getattr(self, name)) <= 0:
                 raise ConfigError(f"{name}={getattr(self, name)}: the shares must not all be zero")
+
+
+class Constants(NamedTuple):
+    """TrafficConfig's numbers as the kernels take them (`TrafficConfig.constants`); units as there."""
+
+    min_gap: float
+    stop_gap: float
+    max_decel: float
+    accept_gap: float
+    merge_clearance: float
+    merge_speed: float
+    yield_speed: float
+    corridor_range: float
+    corridor_margin: float
+    lane_change_length: float
+    spawn_clear: float
+    crosswalk_margin: float
+    spawn_rate: float
+    critical_gap_crossing: float
+    impatience: float
+    critical_gap_merge: float
+    signal_time: float
+    safe_decel: float
+    courtesy_range: float
+    decision_period: float
 
 
 @dataclass

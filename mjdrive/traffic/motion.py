@@ -1,0 +1,243 @@
+"""Motion: the closed-form motion of the vehicles over a decision period (constant acceleration, stopping at rest)
+as a plan of poses at every substep, its commit as the new state, lanes passed, and waiting times.
+
+Between decisions every vehicle moves ds = v t + a t^2 / 2 along its planned path (or v^2 / 2|a| once it would
+stop), at its lateral offset; a lane change under way moves across along a smoothstep over `lane_change_length`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from mjdrive.compiled import jit, maximum
+from mjdrive.traffic.geometry import smoothstep
+from mjdrive.traffic.intentions import next_lanes
+from mjdrive.traffic.lanes import find_segment, flat_position
+from mjdrive.traffic.state import Poses
+
+STOPPED_SPEED = 1.0  # [m/s] a vehicle slower than this is waiting (urban rules: its patience runs down)
+
+
+@jit
+def path_starts(path, lane_length):
+    """(NV, PATH) [m] from each vehicle's lane start to the start of each lane on its path (inf past its end)."""
+    n_v, n_p = path.shape
+    before = np.zeros((n_v, n_p))
+    for r in range(n_v):
+        for j in range(1, n_p):
+            previous = path[r, j - 1]
+            length = lane_length[previous] if previous >= 0 else np.inf
+            before[r, j] = length if j == 1 else before[r, j - 1] + length
+    return before
+
+
+@jit
+def plan_distances(v, accel, t_plan):
+    """Distance [m] (S, NV) each vehicle moves by each substep time t_plan (S,) [s] at speed v [m/s] and constant
+    acceleration [m/s^2], stopping at zero speed."""
+    n_s, n_v = len(t_plan), len(v)
+    ds = np.empty((n_s, n_v))
+    for i in range(n_s):
+        t = t_plan[i]
+        for n in range(n_v):
+            vn, an = v[n], accel[n]
+            if an < 0 and vn + an * t < 0:
+                ds[i, n] = vn * vn / maximum(-2 * an, 1e-9)
+            else:
+                ds[i, n] = vn * t + 0.5 * an * t * t
+    return ds
+
+
+@jit
+def centre_poses(lanes, path, s, ds, before):
+    """Centre-line x, y [m] and heading [rad] (S, NV) of each vehicle's lane after moving ds (S, NV) [m] from s
+    along its path (`before` (NV, PATH) [m]: to the start of each path lane; a dead end's vehicle stays on its last
+    lane). Each vehicle's segment search goes on from its previous substep's."""
+    n_s, n_v, n_p = ds.shape[0], len(s), before.shape[1]
+    x = np.empty((n_s, n_v))
+    y = np.empty((n_s, n_v))
+    h = np.empty((n_s, n_v))
+    g = lanes.g
+    for n in range(n_v):
+        last_index = -1  # the last lane on the path
+        for j in range(n_p):
+            if path[n, j] >= 0:
+                last_index += 1
+        last_index = max(last_index, 0)
+        previous_lane, seg = -1, 0
+        for i in range(n_s):
+            p = s[n] + ds[i, n]
+            k = 0
+            for j in range(1, n_p):
+                if p >= before[n, j]:
+                    k += 1
+            k = min(k, last_index)
+            lane = max(path[n, k], 0)
+            gq = flat_position(lanes, lane, p - before[n, k])
+            if lane == previous_lane and gq >= g[seg]:  # further along the same lane: walk on
+                while seg < lanes.last_segment[lane] and g[seg + 1] <= gq:
+                    seg += 1
+            else:
+                seg = find_segment(g, gq, lanes.first[lane], lanes.last_segment[lane])
+            previous_lane = lane
+            u = (gq - g[seg]) * lanes.inv[seg]
+            x[i, n] = lanes.x0[seg] + u * lanes.dx[seg]
+            y[i, n] = lanes.y0[seg] + u * lanes.dy[seg]
+            h[i, n] = lanes.h0[seg] + u * lanes.dh[seg]
+    return x, y, h
+
+
+def lateral(vehicles, ds: np.ndarray, h: np.ndarray, lane_change_length: float) -> tuple[np.ndarray, np.ndarray]:
+    """Lateral offset d [m] (S or 1, NV) from the centre line and yaw [rad] (S, NV) after moving ds (S, NV) [m]
+    (lane changes under way move across along a smoothstep; h: the centre line's heading)."""
+    if (vehicles.lc_dist < lane_change_length).any():  # lane changes under way
+        sm, dsm = smoothstep((vehicles.lc_dist[None] + ds) / lane_change_length)
+        d = vehicles.d_pref[None] + vehicles.lc_shift[None] * (1.0 - sm)
+        return d, h + np.arctan(-vehicles.lc_shift[None] * dsm / lane_change_length)
+    return vehicles.d_pref[None], h
+
+
+@jit
+def place_vehicles(vehicles, x, y, h, d, yaw, t_plan, hidden, out):
+    """Write the vehicles' poses into `out` (Poses (S, N, ...), at their slots): the centre line x, y [m] (S, NV)
+    shifted by the lateral offset d [m] (S or 1, NV) along the normal (-sin h, cos h) of its heading h [rad] (S, NV),
+    their yaw [rad] (S, NV) and speed max(v + a t, 0) [m/s] at the times t_plan (S,) [s]; inactive vehicles at their
+    hidden position (NV, 3) [m]. (Quaternions: `yaw_quats`.)"""
+    n_s, n_v = x.shape
+    one_d = d.shape[0] == 1
+    v, accel, active, slots = vehicles.v, vehicles.accel, vehicles.active, vehicles.slot
+    sin_h, cos_h = np.empty(n_v), np.empty(n_v)  # each vehicle's last heading's (libm's, as numpy's): a heading
+    last_h = np.full(n_v, np.nan)  # held (along a straight, at rest) is not computed again (zeros are: their sign)
+    for i in range(n_s):
+        t = t_plan[i]
+        for n in range(n_v):
+            slot = slots[n]
+            if active[n]:
+                dn = d[0, n] if one_d else d[i, n]
+                hn = h[i, n]
+                if hn != last_h[n] or hn == 0.0:
+                    sin_h[n], cos_h[n], last_h[n] = math.sin(hn), math.cos(hn), hn
+                out.pos[i, slot, 0] = x[i, n] - sin_h[n] * dn
+                out.pos[i, slot, 1] = y[i, n] + cos_h[n] * dn
+                out.pos[i, slot, 2] = 0.0
+                out.yaw[i, slot] = yaw[i, n]
+                out.speed[i, slot] = maximum(v[n] + accel[n] * t, 0.0)
+            else:
+                out.pos[i, slot, 0] = hidden[n, 0]
+                out.pos[i, slot, 1] = hidden[n, 1]
+                out.pos[i, slot, 2] = hidden[n, 2]
+                out.yaw[i, slot] = 0.0
+                out.speed[i, slot] = maximum(v[n] + accel[n] * t, 0.0) * 0.0  # as numpy's x * False
+
+
+@jit
+def yaw_quats(yaw, out):
+    """Quaternions (w, x, y, z) about z of yaw [rad] (S, N) into out (S, N, 4) (zeros in x and y)."""
+    n_s, n = yaw.shape
+    for i in range(n_s):
+        for j in range(n):
+            if i and yaw[i, j] == yaw[i - 1, j] and yaw[i, j] != 0.0:  # a yaw held: the same quaternion (zeros
+                # are computed again: their sign)
+                out[i, j, 0], out[i, j, 3] = out[i - 1, j, 0], out[i - 1, j, 3]
+                continue
+            half = 0.5 * yaw[i, j]
+            out[i, j, 0] = math.cos(half)
+            out[i, j, 3] = math.sin(half)
+
+
+def vehicle_plan(vehicles, lanes, t_plan: np.ndarray, before: np.ndarray, hidden: np.ndarray,
+                 lane_change_length: float, out: Poses, distances: bool = True) -> None:
+    """The vehicles' poses at the times t_plan (S,) [s] of a plan into `out` (their slots of its pos, yaw and
+    speed): moved along their paths (`before`: `path_starts`) by `plan_distances` (or not at all, without
+    `distances`), at their lateral offsets."""
+    if distances:
+        ds = plan_distances(vehicles.v, vehicles.accel, t_plan)
+    else:
+        ds = np.zeros((1, len(vehicles.v)))
+    x, y, h = centre_poses(lanes, vehicles.path, vehicles.s, ds, before)
+    d, yaw = lateral(vehicles, ds, h, lane_change_length)
+    place_vehicles(vehicles, x, y, h, d, yaw, t_plan, hidden, out)
+
+
+@jit
+def commit_vehicles(vehicles, t_end, t_end2):
+    """The vehicles' state `t_end` [s] into the plan (`t_end2` = t_end**2 as numpy squares it), in place: the
+    distance each moved at its constant acceleration, stopping at rest, added to s and lc_dist [m]; its new speed
+    [m/s] (0 for inactive vehicles)."""
+    v, accel, active = vehicles.v, vehicles.accel, vehicles.active
+    for r in range(len(v)):
+        vr, ar = v[r], accel[r]
+        if active[r]:
+            if ar < 0 and vr + ar * t_end < 0:
+                ds = vr * vr / maximum(-2 * ar, 1e-9)
+            else:
+                ds = vr * t_end + 0.5 * ar * t_end2
+        else:
+            ds = 0.0
+        vehicles.s[r] += ds
+        vehicles.lc_dist[r] += ds
+        v[r] = maximum(vr + ar * t_end, 0.0) if active[r] else 0.0
+
+
+@jit
+def count_waiting(vehicles, period):
+    """Each vehicle's waiting time [s] one decision period [s] on, in place: reset unless it is active and slower
+    than STOPPED_SPEED (creeping up to a give-way line does not reset it)."""
+    for r in range(len(vehicles.v)):
+        waiting = vehicles.active[r] and vehicles.v[r] < STOPPED_SPEED
+        vehicles.stopped_time[r] = vehicles.stopped_time[r] + period if waiting else 0.0
+
+
+@jit
+def lanes_passed(vehicles, lane_length):
+    """One round of moving on along the paths, in place: active vehicles past the end of their lane (s >= its
+    length [m]) move on to the next lane of their path (s less that length, the path shifted by one, its last
+    entry left for the caller to draw); those whose path ends there leave the map (inactive, speed 0). Returns
+    the rows that moved on (K,), in order, and how many of them left."""
+    path, s, active = vehicles.path, vehicles.s, vehicles.active
+    n_v, n_p = path.shape
+    rows = np.empty(n_v, dtype=np.int64)
+    k = 0
+    for r in range(n_v):
+        if active[r] and s[r] >= lane_length[max(path[r, 0], 0)]:
+            rows[k] = r
+            k += 1
+    gone = 0
+    for j in range(k):
+        r = rows[j]
+        s[r] -= lane_length[path[r, 0]]
+        for c in range(n_p - 1):
+            path[r, c] = path[r, c + 1]
+        if path[r, 0] < 0:
+            active[r] = False
+            vehicles.v[r] = 0.0
+            gone += 1
+    return rows[:k], gone
+
+
+@jit
+def extend_then_lanes_passed(vehicles, routes, lane_length, rows, u):
+    """The end of a round of `lanes_passed` and the next round: the vehicles `rows` that moved on draw their path's
+    new last lane with the uniform draws u (K,) (`intentions.next_lanes`), then `lanes_passed`."""
+    path = vehicles.path
+    n_p = path.shape[1]
+    previous = np.empty(len(rows), dtype=np.int64)
+    for j in range(len(rows)):
+        previous[j] = path[rows[j], n_p - 2]
+    chosen = next_lanes(routes, vehicles.intention, vehicles.ring_passed, rows, previous, u)
+    for j in range(len(rows)):
+        path[rows[j], n_p - 1] = chosen[j]
+    return lanes_passed(vehicles, lane_length)
+
+
+def move_on(vehicles, routes, lane_length: np.ndarray, rng: np.random.Generator) -> int:
+    """Vehicles past the end of their lane move on along their path, drawing the lanes their paths gain (or leave
+    the map at dead ends); how many left."""
+    rows, gone = lanes_passed(vehicles, lane_length)
+    left = 0
+    while len(rows):
+        left += gone
+        rows, gone = extend_then_lanes_passed(vehicles, routes, lane_length, rows, rng.random(len(rows)))
+    return left
