@@ -337,17 +337,22 @@ def flat_position(lanes, lane: int, s: float) -> float:
     return lanes.base[lane] + minimum(maximum(s, 0.0), lanes.length[lane])
 
 
+@inline
+def segment_at(lanes, lane: int, s: float) -> tuple[int, float]:
+    """The segment of `lane` at s [m] (clamped to the lane) and the share u of it passed there."""
+    gq = flat_position(lanes, lane, s)
+    seg = find_segment(lanes.g, gq, lanes.first[lane], lanes.last_segment[lane])
+    return seg, (gq - lanes.g[seg]) * lanes.inv[seg]
+
+
 @jit
 def centre_points(lanes, lane, s):
     """Centre-line x, y [m] and heading [rad] (K,) at s (K,) [m] on `lane` (K,) (s clamped to the lane)."""
     n = len(s)
     x, y, h = np.empty(n), np.empty(n), np.empty(n)
     for k in range(n):
-        gq = flat_position(lanes, lane[k], s[k])
-        seg = find_segment(lanes.g, gq, lanes.first[lane[k]], lanes.last_segment[lane[k]])
-        u = (gq - lanes.g[seg]) * lanes.inv[seg]
-        x[k] = lanes.x0[seg] + u * lanes.dx[seg]
-        y[k] = lanes.y0[seg] + u * lanes.dy[seg]
+        seg, u = segment_at(lanes, lane[k], s[k])
+        x[k], y[k] = lanes.x0[seg] + u * lanes.dx[seg], lanes.y0[seg] + u * lanes.dy[seg]
         h[k] = lanes.h0[seg] + u * lanes.dh[seg]
     return x, y, h
 
@@ -357,13 +362,8 @@ def curve_speed(lanes, lane, s):
     """The anticipated curve speed [m/s] (the curves ahead on `lane`, at `anticipation` braking; the next lane's
     are added with `entry_speed`) and the curvature [1/m] (F,) at s (F,) [m] on `lane` (F,)."""
     n = len(s)
-    speed = np.empty(n)
-    kappa = np.empty(n)
+    speed, kappa = np.empty(n), np.empty(n)
     for f in range(n):
-        gq = flat_position(lanes, lane[f], s[f])
-        seg = find_segment(lanes.g, gq, lanes.first[lane[f]], lanes.last_segment[lane[f]])
-        u = (gq - lanes.g[seg]) * lanes.inv[seg]
-        speed[f] = lanes.v0[seg] + u * lanes.dv[seg]
-        kappa[f] = lanes.k0[seg] + u * lanes.dk[seg]
+        seg, u = segment_at(lanes, lane[f], s[f])
+        speed[f], kappa[f] = lanes.v0[seg] + u * lanes.dv[seg], lanes.k0[seg] + u * lanes.dk[seg]
     return speed, kappa
-

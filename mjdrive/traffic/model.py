@@ -51,7 +51,15 @@ from mjdrive.traffic.following import accelerations, obstacles_now
 from mjdrive.traffic.intentions import MERGE, SCENARIOS, YIELD, LaneRoles, Routes, fill_paths
 from mjdrive.traffic.lane_changes import lane_changes
 from mjdrive.traffic.lanes import Crossings, LaneTables, Merges, TrafficMap
-from mjdrive.traffic.motion import commit_vehicles, count_waiting, move_on, path_starts, vehicle_plan, yaw_quats
+from mjdrive.traffic.motion import (
+    commit_vehicles,
+    count_waiting,
+    move_on,
+    path_starts,
+    substeps_due,
+    vehicle_plan,
+    yaw_quats,
+)
 from mjdrive.traffic.params import HIDDEN_Z, KIND_INDEX, N_TRACKS, PATH, ROAD_USER_TYPES, EgoState, TrafficConfig
 from mjdrive.traffic.pedestrians import EGO_REACH, EGO_REACH_PER_SPEED, arrivals, place_pedestrians, start_crossing
 from mjdrive.traffic.spawning import Spawner, SpawnPoints
@@ -59,6 +67,7 @@ from mjdrive.traffic.state import (
     Agents,
     Followers,
     Pedestrians,
+    PlanCursor,
     Poses,
     agents_on_paths,
     ego_on_lanes,
@@ -67,6 +76,7 @@ from mjdrive.traffic.state import (
 )
 
 EGO_DECEL = 3.0  # [m/s^2] the ego's comfortable deceleration, as pedestrians judge whether it could stop
+_NO_PLAN = Poses(np.zeros((0, 0, 3)), np.zeros((0, 0, 4)), np.zeros((0, 0)), np.zeros((0, 0)))
 
 
 class MapTables(NamedTuple):
@@ -300,9 +310,7 @@ class Traffic:
         poses into `data`'s mocap arrays if given. `ego` is called at each decision for the ego's state."""
         start = time.perf_counter()
         substep = self.config.substep
-        accumulated = self._accumulated + dt
-        n = int(accumulated / substep + 1e-6)
-        self._accumulated = accumulated - n * substep
+        n, self._accumulated = substeps_due(self._accumulated, dt, substep)
         for _ in range(n):  # usually once; loops over substeps, never over road users
             if self._plan is None or self._k >= self.n_plan:
                 if self._plan is not None:
@@ -319,19 +327,16 @@ class Traffic:
             self.write(data)
         self.cpu_time += time.perf_counter() - start
 
-    def pose_cursor(self) -> tuple[np.ndarray, np.ndarray, int, int, float, float, float] | None:
-        """Where `advance` stands in the plan, for a compiled loop that takes its plain substeps
-        (`tasks.chunks`): the plan's positions (S, N, 3) [m] and quaternions (S, N, 4), the substeps taken of
-        it and their count S, the time [s] accumulated toward the next substep, the substep [s] and the traffic's
-        time [s]; None without a plan (the next substep decides)."""
-        plan = self._plan
-        if plan is None:
-            return None
-        return plan.pos, plan.quat, self._k, self.n_plan, self._accumulated, self.config.substep, self.time
+    def cursor(self) -> PlanCursor:
+        """Where `advance` stands in the plan (`state.PlanCursor`), for the substep loop that takes its plain
+        substeps (`tasks.stepping`)."""
+        plan = self._plan or _NO_PLAN
+        return PlanCursor(plan.pos, plan.quat, self._k, len(plan.pos), self._accumulated, self.config.substep,
+                          self.time, True)
 
     def moved(self, k: int, accumulated: float, time: float) -> None:
-        """The compiled loop took the plan's substeps up to k (of `pose_cursor`), leaving `accumulated` [s] toward
-        the next, at traffic time `time` [s], and wrote their poses: the state `advance` would have left."""
+        """The substep loop took the plan's substeps up to k (of `cursor`), leaving `accumulated` [s] toward the
+        next, at traffic time `time` [s], and wrote their poses: the state `advance` would have left."""
         if k != self._k:
             self.now = Poses(*(a[k - 1] for a in self._plan))
         self._k, self._accumulated, self.time = k, accumulated, time

@@ -21,6 +21,15 @@ STOPPED_SPEED = 1.0  # [m/s] a vehicle slower than this is waiting (urban rules:
 
 
 @jit
+def substeps_due(accumulated, dt, substep):
+    """The whole substeps [s] due after `dt` [s] more time, with `accumulated` [s] toward the next one, and the time
+    [s] left toward the one after them."""
+    total = accumulated + dt
+    n = int(total / substep + 1e-6)
+    return n, total - n * substep
+
+
+@jit
 def path_starts(path, lane_length):
     """(NV, PATH) [m] from each vehicle's lane start to the start of each lane on its path (inf past its end)."""
     n_v, n_p = path.shape

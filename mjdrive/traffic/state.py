@@ -89,6 +89,22 @@ class Poses(NamedTuple):
     speed: np.ndarray  # (..., N) [m/s]
 
 
+class PlanCursor(NamedTuple):
+    """Where the traffic stands in its plan of poses, for the substep loop (`tasks.stepping`) that takes its plain
+    substeps: the plan's positions (S, N, 3) [m] and quaternions (S, N, 4) (S = 0: no plan, the next substep
+    decides), the substeps taken of it, their count S, the time [s] accumulated toward the next substep, the
+    substep [s], the traffic's time [s], and whether there is traffic to move."""
+
+    pos: np.ndarray
+    quat: np.ndarray
+    k: int
+    n_plan: int
+    accumulated: float
+    substep: float
+    time: float
+    moving: bool
+
+
 class Agents(NamedTuple):
     """The vehicles and the ego (last row) on the lane graph at a decision (A = NV + 1 rows)."""
 
