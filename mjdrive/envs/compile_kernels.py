@@ -1,7 +1,7 @@
 """`python -m mjdrive.envs.compile_kernels`: compile every numba kernel into the on-disk cache once (`make install`
 runs it), so that no env or worker pays the compilation later: the traffic's and the route frame's
-(`mjdrive.traffic.compile_kernels`), then the tasks' per-step kernels (ego updates, observations) and the physics
-chunks (`tasks.chunks`), by stepping a roundabout env (with pedestrians) and the concatenated urban route, and the
+(`mjdrive.traffic.compile_kernels`), then the tasks' per-step kernels (ego updates, observations) and the substep
+loop (`tasks.stepping`), by stepping a roundabout env (with pedestrians) and the concatenated urban route, and the
 scripted drivers' lane kernels on their routes. Prints where the cache is and how long it took."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from mjdrive import suite
-from mjdrive.compiled import KERNELS, numba_cache_dir
+from mjdrive.compiled import INTERPRETED, numba_cache_dir
 from mjdrive.traffic import compile_kernels as traffic_kernels
 
 WARM_STEPS = 12  # control steps per env: over two traffic decisions on each
@@ -38,9 +38,8 @@ def compile_kernels() -> float:
 
 
 def main() -> int:
-    if not KERNELS:
-        print("kernels: numba is not installed (pip install 'mjdrive[fast]'), or MJDRIVE_NO_KERNELS is set: the "
-              "numpy code runs")
+    if INTERPRETED:
+        print("kernels: MJDRIVE_INTERPRETED is set: the kernels run as Python, nothing to compile")
         return 0
     print(f"kernels: compiling into {numba_cache_dir()} ...", flush=True)
     print(f"kernels: ready in {compile_kernels():.1f} s")

@@ -136,6 +136,7 @@ class Physics(dm_mujoco.Physics):
     """
 
     substeps: Substeps | None = None
+    every_chunk: bool = False  # True: every chunk's work in the callback (tests that watch each sample)
     raw_model: mujoco.MjModel
     raw_data: mujoco.MjData
 

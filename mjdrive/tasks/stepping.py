@@ -126,7 +126,7 @@ class Substeps:
     """What runs between one world's physics chunks: `callback(physics, dt)` (the task's substep work, given the
     chunk's duration dt [s]) for the chunks that need Python, and what `run_chunks` does itself: the ego's contact
     check (`sensor`: its counts; without sensors every chunk goes to the callback) and the substeps of `traffic`.
-    `tick(physics)`, if set, runs every `tick_every` chunks within a control step (not after its last chunk)."""
+    `tick(physics)`, if set (`set_tick`), runs every `tick_every` chunks within a control step (not after its last)."""
 
     def __init__(self, timestep: float, period: float, callback: Callable[[Any, float], None],
                  sensor: CollisionSensor | None = None, traffic: Traffic | None = None):
@@ -135,13 +135,19 @@ class Substeps:
         self.dt = float(timestep)  # [s]
         self.chunk = max(1, int(round(period / self.dt)))  # physics steps
         self.callback, self.sensor, self.traffic = callback, sensor, traffic
-        self.every_chunk = False  # True: every chunk to the callback (tests that watch each sample)
         self.tick: Callable[[Any], None] | None = None
         self.tick_every = 0  # chunks
         self._mj_step = mj_step_address()
 
+    def set_tick(self, tick: Callable[[Any], None] | None, period: float = 0.0) -> None:
+        """Run `tick(physics)` every `period` [s] of physics (a whole number of chunks, at least one) within each
+        `advance` (not after its last chunk: the next control step begins there); None: no tick."""
+        self.tick = tick
+        self.tick_every = 0 if tick is None else max(1, int(round(period / (self.chunk * self.dt))))
+
     def advance(self, physics, nstep: int) -> None:
-        """`nstep` physics steps of `physics` (its raw_model, raw_data) with the work between chunks."""
+        """`nstep` physics steps of `physics` (its raw_model, raw_data) with the work between chunks (every chunk's in
+        the callback where `physics.every_chunk`)."""
         self._run(physics, nstep, self._mj_step)
 
     def between_chunks(self, physics, n: int) -> None:
@@ -151,7 +157,7 @@ class Substeps:
     def _run(self, physics, nstep: int, step_fn: int) -> None:
         data, traffic, sensor = physics.raw_data, self.traffic, self.sensor
         mj = (step_fn, physics.raw_model._address, data._address)
-        rows = sensor.contact_sensors if sensor is not None and not self.every_chunk else None
+        rows = sensor.contact_sensors if sensor is not None and not physics.every_chunk else None
         ego, ground = rows if rows is not None else (-1, -1)
         mocap = Mocap(data.mocap_pos, data.mocap_quat, NO_ROWS if traffic is None else traffic.mocap_ids)
         left, ticked = nstep, 0

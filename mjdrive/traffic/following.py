@@ -123,9 +123,7 @@ def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, k
         # 1. Leaders along the planned path (vehicles and the ego).
         best_path, best_a = INF, 0
         for a in range(n_a):
-            pos = offset[f, agents.path[a, 0]] + agents.s[a]
-            ahead = (pos > s[f] or (pos == s[f] and a > row)) and a != row
-            g = pos - front - agents.length[a] / 2 if ahead else INF
+            g = path_gap(offset[f], s[f], front, row, agents, a)
             if g < best_path:
                 best_path, best_a = g, a
             state = _fold(state, g, agents.v[a], c.min_gap, vf, vT, den[f], two_b)
@@ -146,10 +144,10 @@ def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, k
 
         # 3. Crosswalk stop lines.
         if n_k:
-            path_gap = minimum(best_path, 1e9)
-            slow_leader = path_gap < 1e9 and agents.v[best_a] < SLOW_LEADER
+            leader_gap = minimum(best_path, 1e9)
+            slow_leader = leader_gap < 1e9 and agents.v[best_a] < SLOW_LEADER
             for k in range(n_k):
-                g = crosswalk_stop(offset[f], front, length[f], crossings, k, blocked[k], slow_leader, path_gap,
+                g = crosswalk_stop(offset[f], front, length[f], crossings, k, blocked[k], slow_leader, leader_gap,
                                    c.crosswalk_margin, c.min_gap)
                 state = _fold(state, g, 0.0, c.stop_gap, vf, vT, den[f], two_b)
 
@@ -182,6 +180,29 @@ def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, k
 
         lead_gap[f], interaction[f], room[f] = state
     return lead_gap, interaction, room, to_give_way
+
+
+@inline
+def path_gap(offset_f, s, front, row, agents, a):
+    """The gap [m] from a follower (agent `row`, at s [m] along its lane, its front bumper at `front` [m]; offset_f:
+    its row of `Agents.offset`) to agent a's rear bumper if a is ahead on its path (at the same s: the higher row is
+    ahead), else inf."""
+    pos = offset_f[agents.path[a, 0]] + agents.s[a]
+    ahead = (pos > s or (pos == s and a > row)) and a != row
+    return pos - front - agents.length[a] / 2 if ahead else INF
+
+
+@jit
+def path_leader(agents, row):
+    """The nearest agent ahead of agent `row` on its path: the gap [m] from its front bumper to that agent's rear
+    bumper and that agent's speed [m/s] ((inf, 0.0): none)."""
+    s, front = agents.s[row], agents.s[row] + agents.length[row] / 2
+    best, speed = INF, 0.0
+    for a in range(len(agents.s)):
+        g = path_gap(agents.offset[row], s, front, row, agents, a)
+        if g < best:
+            best, speed = g, agents.v[a]
+    return best, speed
 
 
 @jit

@@ -105,6 +105,19 @@ def intention_table(cfg) -> tuple[np.ndarray, np.ndarray]:
 
 
 
+@inline
+def draw_intentions(intention, rows, u, cdfs, columns):
+    """New intentions for vehicles `rows` (K,), in place: intention[rows, columns[i]] is the index where the uniform
+    draw u[i, j] falls in the cumulative shares cdfs[i] (inf-padded; `intention_table`), cdf.searchsorted(u,
+    side="right"): `Generator.choice(n, K, p=shares)`'s values for the same draws."""
+    for i in range(len(columns)):
+        for j in range(len(rows)):
+            c = 0
+            while c < cdfs.shape[1] and cdfs[i, c] <= u[i, j]:
+                c += 1
+            intention[rows[j], columns[i]] = c
+
+
 class Routes(NamedTuple):
     """What the choice of a vehicle's next lane reads: the lane graph's successors (L, W) (-1 padded) and their
     counts, the lanes' roles, the ego's ring exit (-1: none) and whether intentions rule the choice (urban)."""

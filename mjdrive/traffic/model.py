@@ -47,7 +47,7 @@ from mjdrive.compiled import announce_compilation
 from mjdrive.roads import RoadMap
 from mjdrive.roads.conflicts import ConflictZones
 from mjdrive.traffic.conflicts import ApproachTable
-from mjdrive.traffic.following import accelerations, obstacles_now
+from mjdrive.traffic.following import accelerations, obstacles_now, path_leader
 from mjdrive.traffic.intentions import MERGE, SCENARIOS, YIELD, LaneRoles, Routes, fill_paths
 from mjdrive.traffic.lane_changes import lane_changes
 from mjdrive.traffic.lanes import Crossings, LaneTables, Merges, TrafficMap
@@ -480,6 +480,14 @@ class Traffic:
     def velocities(self) -> np.ndarray:
         """(N,2) [m/s] world velocity of every slot now."""
         return self.now.speed[:, None] * np.column_stack([np.cos(self.now.yaw), np.sin(self.now.yaw)])
+
+    def leader(self, path: Sequence[int], s: float) -> tuple[float, float]:
+        """The nearest vehicle ahead of the point s [m] along the lanes `path` (lane ids, the point's lane first; the
+        first PATH count): the distance [m] from the point to its rear bumper and its speed [m/s]; (inf, 0.0) when
+        none is on them. The ego is not counted (the point stands in for it)."""
+        agents = agents_on_paths(self.vehicles, np.asarray(path, dtype=np.int64)[:PATH], float(s), 0.0, 0.0,
+                                 self.map.length, self.map.n_lanes)
+        return path_leader(agents, self.nv)
 
     def advise(self, ego: EgoState, accel: float = 2.0, decel: float = 3.0, headway: float = 1.5,
                desired_speed: float = 8.0, accept_gap: float | None = None) -> float:

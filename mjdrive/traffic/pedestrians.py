@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from mjdrive.compiled import inline, jit, maximum, minimum
+from mjdrive.traffic.spawning import uniform
 from mjdrive.traffic.state import Pedestrians
 
 BAND_MARGIN = 0.3  # [m] a crossing is occupied by a walker this far beyond the lane's band (plus crosswalk_margin)
@@ -20,7 +21,7 @@ def arrivals(pedestrians: Pedestrians, t_end: float, wait: tuple[float, float], 
     arrived = commit_pedestrians(pedestrians, t_end)
     if arrived.any():
         lo, hi = wait
-        pedestrians.wait[arrived] = lo + (hi - lo) * rng.random(int(arrived.sum()))  # rng.uniform's numbers
+        pedestrians.wait[arrived] = uniform(rng, lo, hi, int(arrived.sum()))
 
 
 @jit
