@@ -8,7 +8,8 @@ Each case drives one task with a scripted policy (the traffic-aware autopilot, t
 pure pursuit on the waypoint tasks) through the gymnasium env for `--steps` control steps per seed (an episode
 that ends is followed by the next seed's); every step adds to a SHA-256: the observation, the reward and the
 episode's end, the ego's physics state (qpos, qvel, mocap poses), and the traffic as its public queries show
-it (poses, speeds, present slots, intentions). A `batched` case steps two roundabout copies in a `BatchedEnv`.
+it (poses, speeds, present slots, intentions), and at an episode's end its `info`. A `batched` case steps two
+roundabout copies in a `BatchedEnv`.
 The same code gives the same hashes on every run (determinism); a change of any number changes them.
 """
 
@@ -39,6 +40,8 @@ CASES: tuple[tuple[str, str, str], ...] = (
 )
 BATCHED = ("roundabout", ("d120", "d210"), "autopilot")  # two copies stepped together
 FIRST_SEED = 100
+NEW_INFO = ("exit_number",)  # info keys added after the hashes were first recorded (b4686a2): left out, so that a
+# new metric does not move the guard (a changed number of the old keys does)
 
 
 def _state_bytes(env) -> Iterator[bytes]:
@@ -57,7 +60,8 @@ def _step_bytes(observation: dict, reward: float, terminated: bool, truncated: b
         yield key.encode() + np.ascontiguousarray(observation[key]).tobytes()
     yield np.array([reward], np.float64).tobytes() + bytes([terminated, truncated])
     if terminated or truncated:  # the episode's metrics (exact float reprs)
-        yield repr(sorted((k, v) for k, v in info.items() if isinstance(v, (bool, int, float, str)))).encode()
+        yield repr(sorted((k, v) for k, v in info.items()
+                          if isinstance(v, (bool, int, float, str)) and k not in NEW_INFO)).encode()
 
 
 def case_hash(domain: str, task: str, policy: str, seed: int, steps: int) -> str:

@@ -28,7 +28,8 @@ Reward, eq. (12): -100 on collision; d_pre - d_cu (remaining route distance [m] 
 step to the next); v/10 with v in km/h clipped to [0, 30] (at most 3); -0.05 x off-road share of the
 footprint; -0.05 x share of the footprint in another lane than the route; +100 on arrival.
 `task.reward_terms` holds the terms of the last step. Episodes end on collision or arrival (terminated)
-or after 1100 steps (truncated). Control at 5 Hz (§5.1).
+or after 1100 steps (truncated). Control at 5 Hz (§5.1). `info` names the entry and exit arms ("entry",
+"exit": absolute arm indices) and the exit counted from the entry ("exit_number", 1: the first exit).
 
 Leaving the route (`off_route` 5 m from its centre line: a missed exit, a drive across the island) also
 ends the episode (terminated, `info["off_route"]`, not a success). The study lists only collision, arrival
@@ -182,7 +183,8 @@ class RoundaboutTask(DrivingTask):
     def initialize_episode(self, physics: Physics) -> None:
         rm = self.road_map
         entry = self.entries[self.random.randint(len(self.entries))]
-        exit_arm = (entry + self.exits[self.random.randint(len(self.exits))]) % len(self.arms)
+        exit_number = self.exits[self.random.randint(len(self.exits))]  # counted from the entry (1: the first)
+        exit_arm = (entry + exit_number) % len(self.arms)
         self.entry_arm, self.exit_arm = entry, exit_arm
         self.route = list(self.routes[(entry, exit_arm)])
         self.route_lane = Lane(rm.route_polyline(self.route), name="route")
@@ -209,7 +211,7 @@ class RoundaboutTask(DrivingTask):
             "success": False, "collision": False, "off_road": False, "off_route": False, "physics_error": None,
             "elapsed_time": 0.0, "average_speed": 0.0, "distance": 0.0, "steps": 0, "episode_reward": 0.0,
             "remaining_distance": self.remaining, "route_length": self.destination_s - start_s,
-            "entry": entry, "exit": exit_arm,
+            "entry": entry, "exit": exit_arm, "exit_number": exit_number,
         }
         self._step_reward = 0.0
         self.reward_terms = {}
