@@ -113,7 +113,7 @@ def _entry_time(rm, circulating: bool) -> float:
                   s=rm.lanes[ids["arm0_in_0"]].length - 12.0, speed=4.0)
     if circulating:  # reaches the merge point (the start of ring_1_1) in about 3 s
         traffic.place(1, [ids["ring_1_7"], ids["ring_1_0"], ids["ring_1_1"]], s=8.0, speed=5.0)
-    stop = traffic.map.yield_stop[list(traffic.map.yield_lane).index(ids["arm0_entry"])]
+    stop = traffic.map.merges.stop[list(traffic.map.merges.lane).index(ids["arm0_entry"])]
     passed_line, crossed = [], []
 
     def watch(t):
@@ -139,8 +139,9 @@ def test_vehicles_stop_for_a_pedestrian_on_the_crosswalk(roundabout_map):
     rm = roundabout_map
     traffic = _roundabout_traffic(rm, ["car", "pedestrian", "pedestrian", "pedestrian", "pedestrian"])
     lane = rm.lane_id("arm0_in_0")
-    k = int(np.flatnonzero(traffic.map.cross_lane == lane)[0])
-    crossing_s, crossing_u, cw = traffic.map.cross_s[k], traffic.map.cross_u[k], traffic.map.cross_cw[k]
+    crossings = traffic.map.crossings
+    k = int(np.flatnonzero(crossings.lane == lane)[0])
+    crossing_s, crossing_u, cw = crossings.s[k], crossings.u[k], crossings.crosswalk[k]
     ped = int(np.flatnonzero(traffic.pedestrians.crosswalk == cw)[0])
     for other in range(traffic.np_):
         if other != ped:

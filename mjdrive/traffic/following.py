@@ -41,10 +41,9 @@ def accelerations(followers: Followers, agents: Agents, obstacles: Obstacles, ve
 
 
 @jit
-def obstacles_now(vehicles, pedestrian_slots, now, half_size, slot_row, ego):
+def obstacles_now(vehicles, pedestrian_slots, now, half_size, ego):
     """`Obstacles`: the active vehicles, the pedestrians (slots), then the ego if `ego` (x, y [m], yaw [rad], speed
-    [m/s], half length and width [m]) is not empty, at the slots' poses `now`; slot_row: each slot's vehicle row
-    (-1: a pedestrian)."""
+    [m/s], half length and width [m]) is not empty, at the slots' poses `now` (half sizes (N, 3) [m])."""
     active, vehicle_slots = vehicles.active, vehicles.slot
     n_active = 0
     for r in range(len(active)):
@@ -57,12 +56,12 @@ def obstacles_now(vehicles, pedestrian_slots, now, half_size, slot_row, ego):
         if j < len(active):
             if not active[j]:
                 continue
-            slot = vehicle_slots[j]
+            slot, row[k] = vehicle_slots[j], j
         else:
-            slot = pedestrian_slots[j - len(active)]
+            slot, row[k] = pedestrian_slots[j - len(active)], -1
         xy[k, 0], xy[k, 1] = now.pos[slot, 0], now.pos[slot, 1]
         yaw[k], speed[k] = now.yaw[slot], now.speed[slot]
-        hl[k], hw[k], row[k] = half_size[slot, 0], half_size[slot, 1], slot_row[slot]
+        hl[k], hw[k] = half_size[slot, 0], half_size[slot, 1]
         k += 1
     if len(ego):
         xy[k, 0], xy[k, 1], yaw[k], speed[k], hl[k], hw[k] = ego[0], ego[1], ego[2], ego[3], ego[4], ego[5]

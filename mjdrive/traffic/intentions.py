@@ -72,37 +72,23 @@ class LaneRoles(NamedTuple):
 
 
 @functools.lru_cache(maxsize=32)
-def intention_cdfs(cfg) -> tuple[tuple[int, np.ndarray], ...]:
-    """(column, cumulative distribution) of each scenario's intention shares of a TrafficConfig (normalised as
-    `Generator.choice` normalises p)."""
-    out = []
-    for column, shares in ((LANE_CHANGE, cfg.lane_change_intentions), (CROSSROAD, cfg.turn_intentions),
-                           (MERGE, cfg.merge_intentions), (ROUNDABOUT, cfg.roundabout_intentions)):
+def intention_table(cfg) -> tuple[np.ndarray, np.ndarray]:
+    """Each scenario's intention shares of a TrafficConfig as a cumulative distribution (normalised as
+    `Generator.choice` normalises p), in a table (I, W) padded with inf (never <= a draw) for `draw_intentions`,
+    and their columns of `Vehicles.intention` (I,)."""
+    scenarios = ((LANE_CHANGE, cfg.lane_change_intentions), (CROSSROAD, cfg.turn_intentions),
+                 (MERGE, cfg.merge_intentions), (ROUNDABOUT, cfg.roundabout_intentions))
+    table = np.full((len(scenarios), max(len(shares) for _, shares in scenarios)), np.inf)
+    for i, (_, shares) in enumerate(scenarios):
         p = np.asarray(shares, dtype=float)
         if not (np.all(p >= 0) and p.sum() > 0):
             raise ValueError(f"intention shares must be >= 0 and not all 0, got {shares}")
-        p = p / p.sum()
-        cdf = p.cumsum()
-        cdf /= cdf[-1]
-        cdf.flags.writeable = False
-        out.append((column, cdf))
-    return tuple(out)
-
-
-@functools.lru_cache(maxsize=32)
-def intention_table(cfg) -> tuple[np.ndarray, np.ndarray]:
-    """`intention_cdfs` as arrays for kernels: the cumulative distributions (I, W), padded with inf (never <= a
-    draw), and their columns of Traffic.intention (I,)."""
-    cdfs = intention_cdfs(cfg)
-    table = np.full((len(cdfs), max(len(cdf) for _, cdf in cdfs)), np.inf)
-    for i, (_, cdf) in enumerate(cdfs):
-        table[i, : len(cdf)] = cdf
+        cdf = (p / p.sum()).cumsum()
+        table[i, : len(cdf)] = cdf / cdf[-1]
     table.flags.writeable = False
-    columns = np.array([column for column, _ in cdfs], dtype=np.int64)
+    columns = np.array([column for column, _ in scenarios], dtype=np.int64)
     columns.flags.writeable = False
     return table, columns
-
-
 
 
 @inline
@@ -177,45 +163,23 @@ def honoured_successors(routes, intention, ring_passed, rows, lane, u):
     turn, ring, ring_exit = roles.turn, roles.ring, roles.ring_exit
     n_k, n_w = len(rows), successors.shape[1]
     chosen = np.empty(n_k, dtype=np.int64)
-    allowed = np.zeros(n_w, dtype=np.bool_)
-    valid_w = np.zeros(n_w, dtype=np.bool_)
+    valid, exits = np.zeros(n_w, dtype=np.bool_), np.zeros(n_w, dtype=np.bool_)
+    take, allowed = np.zeros(n_w, dtype=np.bool_), np.zeros(n_w, dtype=np.bool_)
     for k in range(n_k):
-        row = rows[k]
-        lane0 = max(lane[k], 0)
-        wanted = intention[row, CROSSROAD]
-        before = intention[row, ROUNDABOUT] == BEFORE
-        passed = ring_passed[row]
-        any_ok = any_take = any_exit = False
+        row, lane0 = rows[k], max(lane[k], 0)
+        wanted, before, passed = intention[row, CROSSROAD], intention[row, ROUNDABOUT] == BEFORE, ring_passed[row]
         for j in range(n_w):
             succ = successors[lane0, j]
             s0 = max(succ, 0)
-            valid = succ >= 0
-            exit_ = valid and ring_exit[s0]
-            valid_w[j] = valid
-            allowed[j] = valid and (turn[s0] < 0 or turn[s0] == wanted or ring_exit[s0])
-            any_exit |= exit_
-        if ego_exit >= 0 and any_exit:
-            for j in range(n_w):
-                succ = successors[lane0, j]
-                exit_ = valid_w[j] and ring_exit[max(succ, 0)]
-                take = exit_ and succ != ego_exit and (not passed if before else passed)
-                any_take |= take
-            for j in range(n_w):
-                succ = successors[lane0, j]
-                exit_ = valid_w[j] and ring_exit[max(succ, 0)]
-                if any_take:
-                    allowed[j] = exit_ and succ != ego_exit and (not passed if before else passed)
-                else:
-                    allowed[j] = valid_w[j] and not exit_
-        for j in range(n_w):
-            any_ok |= allowed[j]
-        count = 0
-        for j in range(n_w):
-            if not any_ok:
-                allowed[j] = valid_w[j]
-            count += allowed[j]
-        if lane[k] < 0:
-            count = 0
+            valid[j] = succ >= 0
+            exits[j] = valid[j] and ring_exit[s0]
+            take[j] = exits[j] and succ != ego_exit and (not passed if before else passed)
+            allowed[j] = valid[j] and (turn[s0] < 0 or turn[s0] == wanted or ring_exit[s0])
+        if ego_exit >= 0 and exits.any():  # at a ring exit: leave before (after) the ego's exit, or stay
+            allowed[:] = take if take.any() else valid & ~exits
+        if not allowed.any():
+            allowed[:] = valid
+        count = allowed.sum() if lane[k] >= 0 else 0
         pick = np.int64(np.floor(u[k] * max(count, 1)))
         column, running = 0, 0
         for j in range(n_w):

@@ -68,8 +68,8 @@ class Crossings(NamedTuple):
 
 
 class Merges(NamedTuple):
-    """Roundabout entries (Y,): the entering lane, its stop line [m] (front bumper), the lane it joins and that
-    lane's start (the merge point) (Y, 2) [m]."""
+    """Roundabout entries (Y,) (junction lanes that join a lane which also continues a ring lane): the entering
+    lane, its stop line [m] (front bumper), the lane it joins and that lane's start (the merge point) (Y, 2) [m]."""
 
     lane: np.ndarray
     stop: np.ndarray
@@ -119,11 +119,7 @@ class TrafficMap:
         # (L,) lanes without successors beside a same-direction neighbour that goes on (an on-ramp; not the
         # lanes of a road leaving the map, which all end)
         self.ending = (self.n_successors == 0) & (goes_on(self.left) | goes_on(self.right))
-        self.lane_tables = LaneTables(*(getattr(self, name) for name in LaneTables._fields[:11]), self.base, self.first,
-                                self.last_segment, self.g, self._inv, self._x0, self._dx, self._y0, self._dy, self._h0,
-                                self._dh, self._v0, self._dv, self._k0, self._dk, self.entry_speed, self.anticipation)
-        self.crossings = Crossings(self.cross_lane, self.cross_s, self.cross_cw, self.cross_u, self.cw_centre)
-        self.merges = Merges(self.yield_lane, self.yield_stop, self.yield_merge, self.merge_xy)
+        self.lane_tables = LaneTables(*(getattr(self, name) for name in LaneTables._fields))
         self._spawn_points()
 
     # --- flat polylines --------------------------------------------------------------------------------
@@ -140,11 +136,11 @@ class TrafficMap:
         self.g = g
         # Per segment (vertex i to i+1); segments that join two lanes are never selected by `lookup`.
         dg = np.diff(g)
-        self._inv = 1.0 / np.where(dg > 1e-12, dg, 1.0)
-        self._x0, self._dx = xy[:-1, 0], np.diff(xy[:, 0])
-        self._y0, self._dy = xy[:-1, 1], np.diff(xy[:, 1])
-        self._h0, self._dh = h[:-1], np.diff(h)
-        self._k0, self._dk = k[:-1], np.diff(k)
+        self.inv = 1.0 / np.where(dg > 1e-12, dg, 1.0)
+        self.x0, self.dx = xy[:-1, 0], np.diff(xy[:, 0])
+        self.y0, self.dy = xy[:-1, 1], np.diff(xy[:, 1])
+        self.h0, self.dh = h[:-1], np.diff(h)
+        self.k0, self.dk = k[:-1], np.diff(k)
 
     def lookup(self, lane: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Centre-line x, y [m] and heading [rad] at arc length s [m] on `lane` (arrays of one shape; s is clamped
@@ -152,11 +148,6 @@ class TrafficMap:
         lane, s = np.broadcast_arrays(np.asarray(lane, dtype=np.int64), np.asarray(s, dtype=float))
         x, y, h = centre_points(self.lane_tables, lane.ravel(), s.ravel())
         return x.reshape(lane.shape), y.reshape(lane.shape), h.reshape(lane.shape)
-
-    def curve_speed(self, lane: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Curve speed [m/s] anticipating the curves ahead on `lane` and the curvature [1/m] at arc length s [m] on
-        `lane` ((F,) arrays; `curve_speed`)."""
-        return curve_speed(self.lane_tables, lane, s)
 
     def _curve_speed(self, lateral_accel: float, anticipation: float) -> None:
         """Per vertex: the highest speed from which every curve ahead (this lane and, at its end, the slowest
@@ -180,7 +171,7 @@ class TrafficMap:
         self.entry_speed = entry  # [m/s] (L,) the curve speed at each lane's start, anticipating its successors
         self.anticipation = anticipation
         v = np.concatenate(within)  # the curves of the lane itself; the next lane is added at run time
-        self._v0, self._dv = v[:-1], np.diff(v)
+        self.v0, self.dv = v[:-1], np.diff(v)
 
     # --- lane graph ------------------------------------------------------------------------------------
     def _graph(self) -> None:
@@ -246,15 +237,10 @@ class TrafficMap:
             if m >= 0:
                 self.starts_at_merge[m] = True
                 self.ends_at_merge[[p for p in self.predecessors[m] if p != y]] = True
-        self.yield_lane = np.array([r[0] for r in rows], dtype=np.int64)  # entering lane (-1: none)
-        self.yield_merge = np.array([r[1] for r in rows], dtype=np.int64)  # the lane it joins
-        self.yield_stop = np.array([r[2] for r in rows])  # [m] front-bumper stop position along it
-        self.merge_xy = np.array([rm.lanes[r[1]].centre[0] if r[1] >= 0 else (0.0, 0.0) for r in rows])  # [m]
-        if self.yield_lane[0] < 0:
-            self.yield_lane = self.yield_lane[:0]
-            self.yield_merge = self.yield_merge[:0]
-            self.yield_stop = self.yield_stop[:0]
-            self.merge_xy = self.merge_xy[:0]
+        merges = Merges(np.array([r[0] for r in rows], dtype=np.int64), np.array([r[2] for r in rows]),
+                        np.array([r[1] for r in rows], dtype=np.int64),
+                        np.array([rm.lanes[r[1]].centre[0] if r[1] >= 0 else (0.0, 0.0) for r in rows]))
+        self.merges = Merges(*(a[:0] for a in merges)) if merges.lane[0] < 0 else merges
 
     # --- crosswalks --------------------------------------------------------------------------------------
     def _find_crossings(self) -> None:
@@ -282,10 +268,8 @@ class TrafficMap:
                 rows.append((i, s_in.min() - 0.25, s_in.max() + 0.25, c, uc - lane.width / 2,
                              uc + lane.width / 2))
         table = np.array(rows, dtype=float).reshape(-1, 6)
-        self.cross_lane = table[:, 0].astype(np.int64)
-        self.cross_s = table[:, 1:3]  # [m] (K,2) interval along the lane
-        self.cross_cw = table[:, 3].astype(np.int64)
-        self.cross_u = table[:, 4:6]  # [m] (K,2) interval along the crosswalk
+        self.crossings = Crossings(table[:, 0].astype(np.int64), table[:, 1:3], table[:, 3].astype(np.int64),
+                                   table[:, 4:6], self.cw_centre)
 
     # --- spawn points ------------------------------------------------------------------------------------
     def _spawn_points(self) -> None:
@@ -295,9 +279,9 @@ class TrafficMap:
         lane = np.array([i for i, _ in candidates], dtype=np.int64)
         s = np.array([s for _, s in candidates], dtype=float)
         on_cw = np.zeros(len(s), dtype=bool)
-        for k in range(len(self.cross_lane)):
-            lo, hi = self.cross_s[k]
-            on_cw |= (lane == self.cross_lane[k]) & (s > lo - 3.0) & (s < hi + 3.0)
+        for k in range(len(self.crossings.lane)):
+            lo, hi = self.crossings.s[k]
+            on_cw |= (lane == self.crossings.lane[k]) & (s > lo - 3.0) & (s < hi + 3.0)
         lane, s = lane[~on_cw], s[~on_cw]
         x, y, h = self.lookup(lane, s)
         keep: list[int] = []

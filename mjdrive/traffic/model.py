@@ -1,4 +1,4 @@
-"""The traffic model: kinematic traffic on a lane graph, all road users as numpy arrays (no loop per user).
+"""The traffic model: kinematic traffic on a lane graph, all road users as arrays (no Python loop per user).
 
 Road users are MuJoCo mocap boxes (`world.TrafficSlot`, one per slot, fixed count and kind per slot at build
 time) whose geoms collide with the ego only, so the ego hitting one is a real contact.
@@ -15,7 +15,9 @@ constraining of:
     merge point within `accept_gap` seconds (gap acceptance; the entering vehicle yields, approaching its
     yield line slowly enough to stop there);
   * for circulating vehicles, a point before the merge while an entering vehicle that has passed its yield
-    line is still coming in.
+    line is still coming in;
+  * under urban rules (a map's conflict zones) stop lines at crossings and merges by right of way, gaps opened
+    at merges, intentions (conflicts.py, intentions.py).
 Speeds respect the lane speed limit and a lateral-acceleration cap in curves; a Krauss-like safety cap
 keeps the s0 gap even when the obstacle ahead brakes at `max_decel` within the decision period. Vehicles
 change to a same-direction neighbour lane (across a broken line) at random when the target lane has room
@@ -29,8 +31,9 @@ the crosswalk), then walk across at their own speed; vehicles stop for them.
 
 Time: decisions (IDM accelerations, lane changes, spawns, pedestrian starts) every `decision_period`
 seconds; between decisions the motion is integrated in closed form at `substep` resolution for all users
-at once, and `advance` (called every substep, e.g. by `Physics.substep_callback`) writes the poses of the
-current substep into mocap_pos / mocap_quat. Seeded by the np.random.Generator given to `reset`.
+at once, and `advance` (called every substep, by the substep loop `tasks.stepping` where a decision is due)
+writes the poses of the current substep into mocap_pos / mocap_quat. Seeded by the np.random.Generator given to
+`reset`.
 """
 
 
@@ -46,34 +49,23 @@ import numpy as np
 from mjdrive.compiled import announce_compilation
 from mjdrive.roads import RoadMap
 from mjdrive.roads.conflicts import ConflictZones
+from mjdrive.traffic import motion, state
 from mjdrive.traffic.conflicts import ApproachTable
 from mjdrive.traffic.following import accelerations, obstacles_now, path_leader
 from mjdrive.traffic.intentions import MERGE, SCENARIOS, YIELD, LaneRoles, Routes, fill_paths
 from mjdrive.traffic.lane_changes import lane_changes
 from mjdrive.traffic.lanes import Crossings, LaneTables, Merges, TrafficMap
-from mjdrive.traffic.motion import (
-    commit_vehicles,
-    count_waiting,
-    move_on,
-    path_starts,
-    substeps_due,
-    vehicle_plan,
-    yaw_quats,
+from mjdrive.traffic.params import HIDDEN_Z, KIND_INDEX, PATH, ROAD_USER_TYPES, EgoState, TrafficConfig
+from mjdrive.traffic.pedestrians import (
+    EGO_REACH,
+    EGO_REACH_PER_SPEED,
+    arrivals,
+    on_crosswalks,
+    place_pedestrians,
+    start_crossing,
 )
-from mjdrive.traffic.params import HIDDEN_Z, KIND_INDEX, N_TRACKS, PATH, ROAD_USER_TYPES, EgoState, TrafficConfig
-from mjdrive.traffic.pedestrians import EGO_REACH, EGO_REACH_PER_SPEED, arrivals, place_pedestrians, start_crossing
 from mjdrive.traffic.spawning import Spawner, SpawnPoints
-from mjdrive.traffic.state import (
-    Agents,
-    Followers,
-    Pedestrians,
-    PlanCursor,
-    Poses,
-    agents_on_paths,
-    ego_on_lanes,
-    new_vehicles,
-    vehicle_kinds,
-)
+from mjdrive.traffic.state import Agents, Followers, PlanCursor, Poses
 
 EGO_DECEL = 3.0  # [m/s^2] the ego's comfortable deceleration, as pedestrians judge whether it could stop
 _NO_PLAN = Poses(np.zeros((0, 0, 3)), np.zeros((0, 0, 4)), np.zeros((0, 0)), np.zeros((0, 0)))
@@ -126,20 +118,19 @@ class Traffic:
         self.pedestrian_slots = np.flatnonzero(~is_vehicle)
         self.nv, self.np_ = len(self.vehicle_slots), len(self.pedestrian_slots)
         vt = [types[i] for i in self.vehicle_slots]
-        self.vehicles = vehicle_kinds(self.vehicle_slots, self.half_size[self.vehicle_slots],
-                                      np.array([t.accel for t in vt]), np.array([t.decel for t in vt]),
-                                      np.array([t.headway for t in vt]))
+        half = self.half_size[self.vehicle_slots]  # [m]
+        self.vehicles = state.new_vehicles(state.Vehicles(
+            self.vehicle_slots, 2 * half[:, 0], 2 * half[:, 1], np.array([t.accel for t in vt]),
+            np.array([t.decel for t in vt]), np.array([t.headway for t in vt]), *[None] * 15))
         self._b_agents = np.append(self.vehicles.b_comf, EGO_DECEL)  # [m/s^2] comfortable decelerations, ego last
         self.spawner = Spawner(m, spawn_points, np.array([t.speed for t in vt]).reshape(-1, 2),
                                np.array([t.lateral for t in vt]).reshape(-1, 2), cfg, self.urban)
         self._walk_range = np.array([types[i].speed for i in self.pedestrian_slots]).reshape(-1, 2)
-        self.pedestrians = self._pedestrians()
+        self.pedestrians = on_crosswalks(m, self.pedestrian_slots, cfg.kerb)
         self.n_plan = max(1, int(round(cfg.decision_period / cfg.substep)))
         self._t_plan = cfg.substep * np.arange(1, self.n_plan + 1)  # [s]
         self._hidden = np.column_stack([np.zeros(self.n), np.zeros(self.n), HIDDEN_Z - 5.0 * np.arange(self.n)])
         self._hidden_vehicles = self._hidden[self.vehicle_slots]  # [m] (NV, 3)
-        self._slot_row = np.full(self.n, -1, dtype=np.int64)  # vehicle row of each slot (-1: pedestrian)
-        self._slot_row[self.vehicle_slots] = np.arange(self.nv)
         self.mocap_ids: np.ndarray | None = None
         self._mocap: slice | np.ndarray | None = None  # where the slots are in data.mocap_*
         self._views = None  # (data, its mocap_pos and mocap_quat rows (views), their index) of the last `write`
@@ -150,22 +141,6 @@ class Traffic:
         self.rng = np.random.default_rng(0)
         self.intent_rng = np.random.default_rng(1)
         self._reset_state()
-
-    def _pedestrians(self) -> Pedestrians:
-        """The pedestrians on their crosswalks' tracks (so two never overlap), waiting nowhere yet."""
-        m, n = self.map, self.np_
-        if n and m.n_crosswalks == 0:
-            raise ValueError("pedestrians need a road map with crosswalks")
-        if n > N_TRACKS * max(m.n_crosswalks, 1):
-            raise ValueError(f"at most {N_TRACKS} pedestrians per crosswalk ({N_TRACKS * m.n_crosswalks} on this "
-                             f"map), got {n}")
-        cw = np.arange(n) % max(m.n_crosswalks, 1)
-        tracks = (np.arange(n) // max(m.n_crosswalks, 1)) % N_TRACKS
-        offset = (tracks - 1.0) * m.cw_width[cw] / N_TRACKS if n else np.zeros(0)  # [m] along the road
-        return Pedestrians(self.pedestrian_slots, cw, m.cw_half_length[cw] + self.config.kerb,
-                           m.cw_centre[cw].reshape(-1, 2), m.cw_along[cw].reshape(-1, 2),
-                           (offset[:, None] * m.cw_across[cw]).reshape(-1, 2), m.cw_heading[cw], np.zeros(n),
-                           np.ones(n), np.zeros(n, dtype=bool), np.zeros(n), np.zeros(n))
 
     @property
     def ego_exit(self) -> int:
@@ -195,7 +170,7 @@ class Traffic:
         self._views = None
 
     def _reset_state(self) -> None:
-        self.vehicles = new_vehicles(self.vehicles)
+        self.vehicles = state.new_vehicles(self.vehicles)
         n = self.np_
         self.pedestrians = self.pedestrians._replace(u=np.zeros(n), direction=np.ones(n),
                                                      walking=np.zeros(n, dtype=bool), wait=np.zeros(n),
@@ -204,14 +179,9 @@ class Traffic:
         self._plan: Poses | None = None
         self._k = 0  # index of the current substep in the plan
         self._accumulated = 0.0
-        self.now = self._poses(self._hidden.copy(), np.zeros(self.n), np.zeros(self.n))
-
-    @staticmethod
-    def _poses(pos: np.ndarray, yaw: np.ndarray, speed: np.ndarray) -> Poses:
-        """`Poses` of the slots (pos (N, 3) [m], yaw [rad], speed [m/s]), their quaternions computed."""
-        quat = np.zeros((1, len(yaw), 4))
-        yaw_quats(yaw[None], quat)
-        return Poses(pos, quat[0], yaw, speed)
+        quat = np.zeros((1, self.n, 4))
+        motion.yaw_quats(np.zeros((1, self.n)), quat)
+        self.now = Poses(self._hidden.copy(), quat[0], np.zeros(self.n), np.zeros(self.n))
 
     # --- episodes --------------------------------------------------------------------------------------
     def reset(self, rng: np.random.Generator, ego: EgoState | None = None, keep_clear: float = 12.0,
@@ -310,7 +280,7 @@ class Traffic:
         poses into `data`'s mocap arrays if given. `ego` is called at each decision for the ego's state."""
         start = time.perf_counter()
         substep = self.config.substep
-        n, self._accumulated = substeps_due(self._accumulated, dt, substep)
+        n, self._accumulated = motion.substeps_due(self._accumulated, dt, substep)
         for _ in range(n):  # usually once; loops over substeps, never over road users
             if self._plan is None or self._k >= self.n_plan:
                 if self._plan is not None:
@@ -357,7 +327,7 @@ class Traffic:
     def _commit(self, k: int = -1) -> None:
         """Make the plan's substep k (default: its end) the new state."""
         t_end = self._t_plan[k]
-        commit_vehicles(self.vehicles, t_end, t_end**2)
+        motion.commit_vehicles(self.vehicles, t_end, t_end**2)
         if self.np_:
             arrivals(self.pedestrians, t_end, self.config.pedestrian_wait, self.rng)
         self.now = Poses(*(a[k] for a in self._plan))
@@ -368,8 +338,8 @@ class Traffic:
         """New accelerations, lane changes, spawns and pedestrian starts; then the plan of poses."""
         v, cfg = self.vehicles, self.config
         if self.urban:
-            count_waiting(v, cfg.decision_period)
-        self.stats["despawned"] += move_on(v, self.routes, self.map.length, self.rng)
+            motion.count_waiting(v, cfg.decision_period)
+        self.stats["despawned"] += motion.move_on(v, self.routes, self.map.length, self.rng)
         spawned = self.spawner.spawn(v, self.routes, self.generation, self.now.pos, self.ego, self.rng,
                                      self.intent_rng)
         if spawned:
@@ -394,9 +364,9 @@ class Traffic:
 
     def agents(self) -> Agents:
         """Where every vehicle and the ego (the last row) is on the lane graph now (`state.Agents`)."""
-        ego_path, ego_s, ego_v, ego_length = ego_on_lanes(self.ego)
-        return agents_on_paths(self.vehicles, ego_path, ego_s, ego_v, ego_length, self.map.length,
-                               self.map.n_lanes)
+        ego_path, ego_s, ego_v, ego_length = state.ego_on_lanes(self.ego)
+        return state.agents_on_paths(self.vehicles, ego_path, ego_s, ego_v, ego_length, self.map.length,
+                                     self.map.n_lanes)
 
     def _accelerations(self, followers: Followers, agents: Agents, accept_gap: float
                        ) -> tuple[np.ndarray, np.ndarray]:
@@ -404,8 +374,7 @@ class Traffic:
         ego = self.ego
         ego_box = np.zeros(0) if ego is None else np.array(
             [ego.x, ego.y, ego.yaw, max(ego.speed, 0.0), ego.length / 2, ego.width / 2], dtype=float)
-        obstacles = obstacles_now(self.vehicles, self.pedestrian_slots, self.now, self.half_size, self._slot_row,
-                                  ego_box)
+        obstacles = obstacles_now(self.vehicles, self.pedestrian_slots, self.now, self.half_size, ego_box)
         return accelerations(followers, agents, obstacles, self.vehicles, self.pedestrians, self.now.pos,
                              self.tables, self.constants, accept_gap)
 
@@ -415,11 +384,11 @@ class Traffic:
         to the start of each path lane)."""
         s, n = self.n_plan, self.n
         plan = Poses(np.empty((s, n, 3)), np.zeros((s, n, 4)), np.empty((s, n)), np.zeros((s, n)))
-        vehicle_plan(self.vehicles, self.map.lane_tables, self._t_plan, start, self._hidden_vehicles,
-                     self.config.lane_change_length, plan)
+        motion.vehicle_plan(self.vehicles, self.map.lane_tables, self._t_plan, start, self._hidden_vehicles,
+                            self.config.lane_change_length, plan)
         if self.np_:
             place_pedestrians(self.pedestrians, self._t_plan, plan)
-        yaw_quats(plan.yaw, plan.quat)
+        motion.yaw_quats(plan.yaw, plan.quat)
         return plan
 
     def _poses_now(self) -> Poses:
@@ -429,7 +398,7 @@ class Traffic:
         self._vehicle_poses(now)
         if self.np_:
             place_pedestrians(self.pedestrians, np.zeros(1), now)
-        yaw_quats(now.yaw, now.quat)
+        motion.yaw_quats(now.yaw, now.quat)
         return Poses(*(a[0] for a in now))
 
     def _refresh_vehicle_poses(self) -> None:
@@ -437,13 +406,14 @@ class Traffic:
         now = Poses(self.now.pos.copy()[None], np.zeros((1, self.n, 4)), self.now.yaw.copy()[None],
                     np.zeros((1, self.n)))
         self._vehicle_poses(now)
-        yaw_quats(now.yaw, now.quat)
+        motion.yaw_quats(now.yaw, now.quat)
         self.now = Poses(now.pos[0], now.quat[0], now.yaw[0], self.now.speed)
 
     def _vehicle_poses(self, out: Poses) -> None:
         """The vehicles' poses (and speeds) at their state now into out (Poses (1, N, ...))."""
-        vehicle_plan(self.vehicles, self.map.lane_tables, np.zeros(1), path_starts(self.vehicles.path, self.map.length),
-                     self._hidden_vehicles, self.config.lane_change_length, out, distances=False)
+        starts = motion.path_starts(self.vehicles.path, self.map.length)
+        motion.vehicle_plan(self.vehicles, self.map.lane_tables, np.zeros(1), starts, self._hidden_vehicles,
+                            self.config.lane_change_length, out, distances=False)
 
     # --- queries -----------------------------------------------------------------------------------------
     @property
@@ -485,8 +455,8 @@ class Traffic:
         """The nearest vehicle ahead of the point s [m] along the lanes `path` (lane ids, the point's lane first; the
         first PATH count): the distance [m] from the point to its rear bumper and its speed [m/s]; (inf, 0.0) when
         none is on them. The ego is not counted (the point stands in for it)."""
-        agents = agents_on_paths(self.vehicles, np.asarray(path, dtype=np.int64)[:PATH], float(s), 0.0, 0.0,
-                                 self.map.length, self.map.n_lanes)
+        agents = state.agents_on_paths(self.vehicles, np.asarray(path, dtype=np.int64)[:PATH], float(s), 0.0, 0.0,
+                                       self.map.length, self.map.n_lanes)
         return path_leader(agents, self.nv)
 
     def advise(self, ego: EgoState, accel: float = 2.0, decel: float = 3.0, headway: float = 1.5,

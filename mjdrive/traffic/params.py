@@ -123,29 +123,11 @@ class TrafficConfig(Config):
                 raise ConfigError(f"{name}={getattr(self, name)}: the shares must not all be zero")
 
 
-class Constants(NamedTuple):
-    """TrafficConfig's numbers as the kernels take them (`TrafficConfig.constants`); units as there."""
-
-    min_gap: float
-    stop_gap: float
-    max_decel: float
-    accept_gap: float
-    merge_clearance: float
-    merge_speed: float
-    yield_speed: float
-    corridor_range: float
-    corridor_margin: float
-    lane_change_length: float
-    spawn_clear: float
-    crosswalk_margin: float
-    spawn_rate: float
-    critical_gap_crossing: float
-    impatience: float
-    critical_gap_merge: float
-    signal_time: float
-    safe_decel: float
-    courtesy_range: float
-    decision_period: float
+# TrafficConfig's numbers as the kernels take them (`TrafficConfig.constants`; units as there)
+Constants = NamedTuple("Constants", [(name, float) for name in (
+    "min_gap", "stop_gap", "max_decel", "accept_gap", "merge_clearance", "merge_speed", "yield_speed", "corridor_range",
+    "corridor_margin", "lane_change_length", "spawn_clear", "crosswalk_margin", "spawn_rate", "critical_gap_crossing",
+    "impatience", "critical_gap_merge", "signal_time", "safe_decel", "courtesy_range", "decision_period")])
 
 
 @dataclass

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from mjdrive.compiled import inline, jit, maximum, minimum
+from mjdrive.traffic.params import N_TRACKS
 from mjdrive.traffic.spawning import uniform
 from mjdrive.traffic.state import Pedestrians
 
@@ -13,6 +14,23 @@ BAND_MARGIN = 0.3  # [m] a crossing is occupied by a walker this far beyond the 
 EGO_REACH = 7.0  # [m] pedestrians do not start while the ego's centre is this close to the crosswalk's centre ...
 EGO_REACH_PER_SPEED = 3.0  # [s] ... plus this times its speed
 SLOW_LEADER = 3.0  # [m/s] a leader slower than this may leave no room beyond a crosswalk
+
+
+def on_crosswalks(traffic_map, slots: np.ndarray, kerb: float) -> Pedestrians:
+    """Pedestrians in `slots` on the map's crosswalks, in turn, each on one of N_TRACKS tracks (so two never
+    overlap), waiting `kerb` [m] beyond the crosswalk's end; at rest, for `reset` to place."""
+    m, n = traffic_map, len(slots)
+    if n and m.n_crosswalks == 0:
+        raise ValueError("pedestrians need a road map with crosswalks")
+    if n > N_TRACKS * max(m.n_crosswalks, 1):
+        raise ValueError(f"at most {N_TRACKS} pedestrians per crosswalk ({N_TRACKS * m.n_crosswalks} on this map), "
+                         f"got {n}")
+    cw = np.arange(n) % max(m.n_crosswalks, 1)
+    tracks = (np.arange(n) // max(m.n_crosswalks, 1)) % N_TRACKS
+    offset = (tracks - 1.0) * m.cw_width[cw] / N_TRACKS if n else np.zeros(0)  # [m] along the road
+    return Pedestrians(slots, cw, m.cw_half_length[cw] + kerb, m.cw_centre[cw].reshape(-1, 2),
+                       m.cw_along[cw].reshape(-1, 2), (offset[:, None] * m.cw_across[cw]).reshape(-1, 2),
+                       m.cw_heading[cw], np.zeros(n), np.ones(n), np.zeros(n, dtype=bool), np.zeros(n), np.zeros(n))
 
 
 def arrivals(pedestrians: Pedestrians, t_end: float, wait: tuple[float, float], rng: np.random.Generator) -> None:

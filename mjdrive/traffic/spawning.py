@@ -16,9 +16,8 @@ ENTRY_MARGIN = 0.5  # [m] a vehicle enters with its rear this far past the start
 
 
 def uniform(rng: np.random.Generator, low, high, n: int) -> np.ndarray:
-    """`rng.uniform(low, high, n)` (low, high: scalars or (n,) arrays, low <= high as the configuration checks):
-    the same draws and numbers (numpy computes low + (high - low) * a `random()` draw), without its broadcasting
-    machinery and checks (~13-60 us a call)."""
+    """`rng.uniform(low, high, n)`'s numbers and draws (low <= high: scalars or (n,) arrays) without its checks
+    (~13-60 us a call)."""
     return low + (high - low) * rng.random(n)
 
 

@@ -55,14 +55,6 @@ def new_vehicles(kinds: Vehicles) -> Vehicles:
         stopped_time=np.zeros(nv))
 
 
-def vehicle_kinds(slot: np.ndarray, half_size: np.ndarray, a_max: np.ndarray, b_comf: np.ndarray,
-                  headway: np.ndarray) -> Vehicles:
-    """Vehicles of these kinds (slots, half sizes (NV, 3) [m], IDM parameters) with a fresh state."""
-    length, width = 2 * half_size[:, 0], 2 * half_size[:, 1]
-    empty = np.zeros(0)
-    return new_vehicles(Vehicles(slot, length, width, a_max, b_comf, headway, *[empty] * 15))
-
-
 class Pedestrians(NamedTuple):
     """Every pedestrian (P,): where it walks (constants), then its state (reset each episode)."""
 
