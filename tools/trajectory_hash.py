@@ -59,9 +59,9 @@ def _step_bytes(observation: dict, reward: float, terminated: bool, truncated: b
     for key in sorted(observation):
         yield key.encode() + np.ascontiguousarray(observation[key]).tobytes()
     yield np.array([reward], np.float64).tobytes() + bytes([terminated, truncated])
-    if terminated or truncated:  # the episode's metrics (exact float reprs)
-        yield repr(sorted((k, v) for k, v in info.items()
-                          if isinstance(v, (bool, int, float, str)) and k not in NEW_INFO)).encode()
+    if terminated or truncated:  # the episode's metrics: their values (numpy's scalars as Python's), exact reprs
+        plain = sorted((k, v.item() if isinstance(v, np.generic) else v) for k, v in info.items() if k not in NEW_INFO)
+        yield repr([(k, v) for k, v in plain if isinstance(v, (bool, int, float, str))]).encode()
 
 
 def case_hash(domain: str, task: str, policy: str, seed: int, steps: int) -> str:
