@@ -224,7 +224,7 @@ class RoundaboutTask(DrivingTask):
         return self.traffic
 
     def substep(self, physics: Physics, dt: float) -> None:
-        """Physics.substep_callback: sample the ego's contacts, then move the traffic (its mocap poses)."""
+        """The substep callback (`tasks.stepping`): sample the ego's contacts, then move the traffic (mocap poses)."""
         data = physics.raw_data
         self.collision_sensor.sample(data)  # DrivingTask.substep
         self.traffic.advance(dt, self._ego_fn, data)

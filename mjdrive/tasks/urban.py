@@ -152,7 +152,7 @@ class UrbanTask(DrivingTask):
         return self.traffic
 
     def substep(self, physics: Physics, dt: float) -> None:
-        """Physics.substep_callback: sample the ego's contacts, then move the traffic."""
+        """The substep callback (`tasks.stepping`): sample the ego's contacts, then move the traffic."""
         data = physics.raw_data
         self.collision_sensor.sample(data)
         self.traffic.advance(dt, self._ego_fn, data)

@@ -239,7 +239,7 @@ def zone_state(agents, vehicles, approaches, c):
 
 @inline
 def zone_stops(row, courteous_f, r, zs, agents, approaches, vehicles, slot_pos, c):
-    """Follower `row` (an agent row; `courteous_f`: it opens gaps) at approach r on its path: its stop line [m]
+    """Follower `row` (an agent row; `courteous_f`: it opens gaps) at approach r (on its path): its stop line [m]
     (inf: none), its virtual leader's gap [m] and speed [m/s] in a merge, and the distance [m] to its give-way line
     while it gives way there and has not committed (inf: none, then it need not slow down for it).
 
@@ -252,8 +252,6 @@ def zone_stops(row, courteous_f, r, zs, agents, approaches, vehicles, slot_pos, 
     ap = approaches
     s_a, v_a, len_a = agents.s, agents.v, agents.length
     front_me = -agents.offset[row, ap.lane[r]] + (s_a[row] + len_a[row] / 2)
-    if not np.isfinite(front_me):  # not on the follower's path
-        return np.inf, np.inf, 0.0, np.inf
     timed, yields, tie = ap.timed[r], ap.yields[r], ap.tie[r]
     gives_way = yields or tie
     v_me, length_me = maximum(v_a[row], 0.0), len_a[row]

@@ -113,7 +113,7 @@ def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, k
     zones = zone_state(agents, vehicles, approaches, c)
 
     for f in range(n_f):
-        row = f_.row[f]
+        row, offset_f = f_.row[f], offset[f]
         front = s[f] + length[f] / 2
         vf = v[f]
         vT = vf * f_.headway[f]
@@ -122,7 +122,7 @@ def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, k
         # 1. Leaders along the planned path (vehicles and the ego).
         best_path, best_a = INF, 0
         for a in range(n_a):
-            g = path_gap(offset[f], s[f], front, row, agents, a)
+            g = path_gap(offset_f, s[f], front, row, agents, a)
             if g < best_path:
                 best_path, best_a = g, a
             state = _fold(state, g, agents.v[a], c.min_gap, vf, vT, den[f], two_b)
@@ -146,19 +146,21 @@ def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, k
             leader_gap = minimum(best_path, 1e9)
             slow_leader = leader_gap < 1e9 and agents.v[best_a] < SLOW_LEADER
             for k in range(n_k):
-                g = crosswalk_stop(offset[f], front, length[f], crossings, k, blocked[k], slow_leader, leader_gap,
+                g = crosswalk_stop(offset_f, front, length[f], crossings, k, blocked[k], slow_leader, leader_gap,
                                    c.crosswalk_margin, c.min_gap)
                 state = _fold(state, g, 0.0, c.stop_gap, vf, vT, den[f], two_b)
 
         # 4. Roundabout merges: stop lines while a priority agent comes, room for committed entries.
         for y in range(len(merges.lane)):
-            line, keep_out = merge_stops(offset[f], front, vf, merges, y, conflict[y], committed[y],
+            line, keep_out = merge_stops(offset_f, front, vf, merges, y, conflict[y], committed[y],
                                          c.merge_clearance)
             state = _fold(state, line, 0.0, c.stop_gap, vf, vT, den[f], two_b)
             state = _fold(state, keep_out, 0.0, c.stop_gap, vf, vT, den[f], two_b)
 
         # 5. Urban rules: conflict zones on the follower's path.
         for r in range(n_r):
+            if not np.isfinite(agents.offset[row, approaches.lane[r]]):  # not on the follower's path
+                continue
             line_gap, leader_gap, leader_speed, to_line = zone_stops(row, f_.courteous[f], r, zones, agents,
                                                                      approaches, vehicles, slot_pos, c)
             to_give_way[f] = minimum(to_give_way[f], to_line)
@@ -174,7 +176,7 @@ def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, k
             last = path[f, max(k_end, 0)]
             lane_last = max(last, 0)
             ends = lanes.ending[lane_last] and last >= 0
-            to_end = offset[f, lane_last] + lanes.length[lane_last] - front
+            to_end = offset_f[lane_last] + lanes.length[lane_last] - front
             state = _fold(state, to_end if ends else INF, 0.0, c.stop_gap, vf, vT, den[f], two_b)
 
         lead_gap[f], interaction[f], room[f] = state
@@ -195,10 +197,10 @@ def path_gap(offset_f, s, front, row, agents, a):
 def path_leader(agents, row):
     """The nearest agent ahead of agent `row` on its path: the gap [m] from its front bumper to that agent's rear
     bumper and that agent's speed [m/s] ((inf, 0.0): none)."""
-    s, front = agents.s[row], agents.s[row] + agents.length[row] / 2
+    s, front, offset_row = agents.s[row], agents.s[row] + agents.length[row] / 2, agents.offset[row]
     best, speed = INF, 0.0
     for a in range(len(agents.s)):
-        g = path_gap(agents.offset[row], s, front, row, agents, a)
+        g = path_gap(offset_row, s, front, row, agents, a)
         if g < best:
             best, speed = g, agents.v[a]
     return best, speed
