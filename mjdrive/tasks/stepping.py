@@ -82,11 +82,11 @@ NO_ROWS = np.zeros(0, dtype=np.int64)
 
 @jit
 def run_chunks(mj, nstep, chunk, dt, contacts, cursor, mocap, tick_every, ticked):
-    """Step up to `nstep` physics steps in chunks of `chunk` (each dt [s]) with `mj_step` (mj: its address, the
-    model's and the data's; address 0: the physics is stepped already, only the work between chunks is due); after
-    each chunk check the ego's `contacts`, and if the cursor's traffic is moving, take its plan's next substep as
-    `Traffic.advance` does and write its poses into `mocap`. Returns (steps done, status, the last chunk's steps,
-    chunks since the last tick, the cursor's k, accumulated [s] and time [s]): status CALLBACK when the last chunk needs the Python callback
+    """Step up to `nstep` physics steps in chunks of `chunk` (each dt [s]) with `mj_step` (mj: its address, the model's
+    and the data's; address 0: the physics is stepped already, only the work between chunks is due); after each chunk
+    check the ego's `contacts`, and if the cursor's traffic is moving, take its plan's next substep as `Traffic.advance`
+    does and write its poses into `mocap`. Returns (steps done, status, the last chunk's steps, chunks since the last
+    tick, the cursor's k, accumulated [s] and time [s]): status CALLBACK when the last chunk needs the Python callback
     (a contact, a decision due, not exactly one substep), before any of its own work; TICK (also) when `tick_every`
     chunks have passed since the last tick (`ticked` of them had, at the call) and steps are left."""
     k, accumulated, time = cursor.k, cursor.accumulated, cursor.time

@@ -26,21 +26,31 @@ MIN_DESIRED_SPEED = 0.1  # [m/s] IDM's free-road term divides by the desired spe
 MIN_GAP_DIVISOR = 0.05  # [m] ... and its interaction term by the gap, at least this
 
 
-def accelerations(followers: Followers, agents: Agents, obstacles: Obstacles, vehicles, pedestrians, slot_pos,
-                  tables, c, accept_gap: float) -> tuple[np.ndarray, np.ndarray]:
+def accelerations(followers: Followers, agents: Agents, vehicles, pedestrians, now, half_size: np.ndarray,
+                  ego: np.ndarray, tables, c, accept_gap: float) -> tuple[np.ndarray, np.ndarray]:
     """IDM accelerations [m/s^2] of `followers` (rows of `agents`) and their smallest gaps [m] (inf where none), capped
-    so that each can still stop within its room whatever the obstacle does. `tables`: the traffic's `MapTables`;
-    c: its `Constants`; accept_gap [s]: at roundabout merges."""
-    lanes = tables.lanes
-    vcurve, kappa = curve_speed(lanes, np.maximum(followers.path[:, 0], 0), followers.s)
-    lead_gap, interaction, room, to_give_way = gap_summary(followers, agents, obstacles, vehicles, pedestrians,
-                                                           slot_pos, kappa, tables, c, accept_gap)
-    v0, ratio = desired_speed(followers, vcurve, to_give_way, lanes, tables.merges, c.yield_speed)
-    ratio4 = ratio**4  # numpy's power (the numbers every trajectory was recorded with)
+    so that each can still stop within its room whatever the obstacle does (`gap_table`, `idm`)."""
+    lead_gap, interaction, room, v0, ratio = gap_table(followers, agents, vehicles, pedestrians, now, half_size, ego,
+                                                       tables, c, accept_gap)
+    ratio4 = ratio**4  # numpy's power (the numbers every trajectory was recorded with; not libm's pow)
     return idm(followers.a_max, followers.v, v0, ratio4, interaction, room, c.decision_period, c.max_decel), lead_gap
 
 
 @jit
+def gap_table(followers, agents, vehicles, pedestrians, now, half_size, ego, tables, c, accept_gap):
+    """Every follower's gap table reduced (`gap_summary`: the smallest gap [m], the largest interaction term, the least
+    room [m]) and its desired speed [m/s] with its speed's ratio to it (`desired_speed`), among the corridor's
+    obstacles now (`obstacles_now`; ego: its box, or empty) and the agents on the lane graph. `tables`: the traffic's
+    `MapTables`; c: its `Constants`; accept_gap [s]: at roundabout merges."""
+    obstacles = obstacles_now(vehicles, pedestrians.slot, now, half_size, ego)
+    vcurve, kappa = curve_speed(tables.polylines, np.maximum(followers.path[:, 0], 0), followers.s)
+    lead_gap, interaction, room, to_give_way = gap_summary(followers, agents, obstacles, vehicles, pedestrians,
+                                                           now.pos, kappa, tables, c, accept_gap)
+    v0, ratio = desired_speed(followers, vcurve, to_give_way, tables.lanes, tables.merges, c.yield_speed)
+    return lead_gap, interaction, room, v0, ratio
+
+
+@inline
 def obstacles_now(vehicles, pedestrian_slots, now, half_size, ego):
     """`Obstacles`: the active vehicles, the pedestrians (slots), then the ego if `ego` (x, y [m], yaw [rad], speed
     [m/s], half length and width [m]) is not empty, at the slots' poses `now` (half sizes (N, 3) [m])."""
@@ -85,7 +95,7 @@ def _fold(state, gap: float, lead: float, s0: float, v: float, vT: float, den: f
     return smallest, strongest, least
 
 
-@jit
+@inline
 def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, kappa, tables, c, accept_gap):
     """For every follower: the smallest gap [m] of its gap table (inf if none), the largest IDM interaction term
     (s*/gap)^2, the least stopping room [m] (gap - s0 + v_lead^2 / 2 max_decel; inf if none) and the distance [m]
@@ -206,7 +216,7 @@ def path_leader(agents, row):
     return best, speed
 
 
-@jit
+@inline
 def desired_speed(followers, vcurve, to_give_way, lanes, merges, yield_speed):
     """Each follower's desired speed [m/s]: its own, the lane's limit, the curves ahead on this lane and the next
     (vcurve [m/s]: this lane's), and slow enough to stop at yield lines (roundabout merges) and give-way lines ahead

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mjdrive.compiled import jit, minimum
+from mjdrive.compiled import inline, jit, minimum
 from mjdrive.traffic.geometry import smoothstep
 from mjdrive.traffic.intentions import KEEP, LANE_CHANGE, LEFT, RIGHT, draw_successors, fill_paths
 
@@ -29,21 +29,20 @@ def lane_changes(vehicles, agents, lanes, routes, config, c, rng: np.random.Gene
     (MOBIL's safety criterion). `agents`: the decision's Agents; now_pos: the slots' positions (N, 3) [m];
     zone_points: (R, 2) [m] the conflict zones' points (no intended change starts near them); config: the
     TrafficConfig, c: its Constants. True if a vehicle changed lane."""
-    lane0, right, left, near_merge = options(vehicles, lanes)
     if config.lane_changes == "intention":
-        finish_lane_changes(vehicles, c.lane_change_length)
-        row, side = intended_lane_change(vehicles, lane0, left, right, near_merge, lanes, routes.roles.priority,
-                                         now_pos, zone_points, time, c)
+        lane0, right, left, row, side = intended_lane_change(vehicles, lanes, routes.roles.priority, now_pos,
+                                                             zone_points, time, c)
     else:
-        row, side = _random_try(vehicles, right, left, near_merge, config, rng)
+        lane0, right, left, rows = random_candidates(vehicles, lanes, c.lane_change_length)
+        row, side = _random_try(rows, config, rng)
     if row < 0:
         return False
     return _change(vehicles, agents, lanes, routes, config, rng, now_pos, ego, row, side, lane0, right, left)
 
 
-def _random_try(vehicles, right, left, near_merge, config, rng: np.random.Generator) -> tuple[int, int]:
-    """(row, side) of one random try at the rates of `lane_change_rate` (side 0: right, 1: left), or (-1, -1)."""
-    rows = random_candidates(vehicles, right, left, near_merge, config.lane_change_length)
+def _random_try(rows: np.ndarray, config, rng: np.random.Generator) -> tuple[int, int]:
+    """(row, side) of one random try among the candidates `rows` at the rates of `lane_change_rate` (side 0: right,
+    1: left), or (-1, -1)."""
     if not len(rows):
         return -1, -1
     rate_right, rate_left = config.lane_change_rate
@@ -104,7 +103,7 @@ def safe_for_follower(vehicles, row: int, j: int, gap: float, vf: float, config)
     return bool(decel <= config.safe_decel)
 
 
-@jit
+@inline
 def options(vehicles, lanes):
     """Each vehicle's current lane, its right and left neighbours it may change to (-1: none; not to the right
     before a diverge, where exiting vehicles slow down) and whether it is near a merge (the end of a lane ending at
@@ -127,7 +126,7 @@ def options(vehicles, lanes):
     return lane0, right, left, near_merge
 
 
-@jit
+@inline
 def finish_lane_changes(vehicles, lane_change_length):
     """Intended lane changes that are over (lc_dist [m] at least `lane_change_length`), in place: the vehicle now
     keeps its lane, its signal goes off."""
@@ -139,9 +138,10 @@ def finish_lane_changes(vehicles, lane_change_length):
 
 
 @jit
-def random_candidates(vehicles, right, left, near_merge, lane_change_length):
-    """The rows (K,) that may change lane at random now: active, a neighbour to change to, no change under way,
-    past the lane's start, a leader farther than a lane change's length and not near a merge."""
+def random_candidates(vehicles, lanes, lane_change_length):
+    """`options`, and the rows (K,) that may change lane at random now: active, a neighbour to change to, no change
+    under way, past the lane's start, a leader farther than a lane change's length and not near a merge."""
+    lane0, right, left, near_merge = options(vehicles, lanes)
     rows = np.empty(len(vehicles.s), dtype=np.int64)
     k = 0
     for r in range(len(vehicles.s)):
@@ -149,17 +149,19 @@ def random_candidates(vehicles, right, left, near_merge, lane_change_length):
                 and vehicles.s[r] > START_ZONE and vehicles.lead_gap[r] > lane_change_length and not near_merge[r]):
             rows[k] = r
             k += 1
-    return rows[:k]
+    return lane0, right, left, rows[:k]
 
 
 @jit
-def intended_lane_change(vehicles, lane0, left, right, near_merge, lanes, priority, now_pos, zone_points, now, c):
-    """Vehicles whose lane-change intention has a neighbour lane on its side signal (`lc_signal` [s], updated in
-    place at time `now` [s]); returns (row, side) of the one that has signalled longest for at least `signal_time`
-    (side 0: right, 1: left), or (-1, -1). A lane that ends beside a neighbour (an on-ramp) must be left, whatever
-    the intention; nobody changes into a lane of lower rank (`priority`: an acceleration lane that must give way at
-    its end), nor starts within ZONE_CLEARANCE plus a lane change's length of a conflict zone's point (the move
-    takes a while). now_pos: the slots' positions (N, 3) [m]."""
+def intended_lane_change(vehicles, lanes, priority, now_pos, zone_points, now, c):
+    """After `finish_lane_changes`, vehicles whose lane-change intention has a neighbour lane (`options`) on its side
+    signal (`lc_signal` [s], updated in place at time `now` [s]); returns the options and (row, side) of the one that
+    has signalled longest for at least `signal_time` (side 0: right, 1: left), or (-1, -1). A lane that ends beside a
+    neighbour (an on-ramp) must be left, whatever the intention; nobody changes into a lane of lower rank (`priority`:
+    an acceleration lane that must give way at its end), nor starts within ZONE_CLEARANCE plus a lane change's length of
+    a conflict zone's point (the move takes a while). now_pos: the slots' positions (N, 3) [m]."""
+    lane0, right, left, near_merge = options(vehicles, lanes)
+    finish_lane_changes(vehicles, c.lane_change_length)
     wish = vehicles.intention[:, LANE_CHANGE]
     signal = vehicles.lc_signal
     zone_distance = ZONE_CLEARANCE + c.lane_change_length
@@ -189,11 +191,11 @@ def intended_lane_change(vehicles, lane0, left, right, near_merge, lanes, priori
         if able and signal[n] >= 0 and now - signal[n] >= signal_time and signal[n] < best_signal:
             best_row, best_signal = n, signal[n]
     if best_row < 0:
-        return -1, -1
+        return lane0, right, left, -1, -1
     w = wish[best_row]
     if lanes.ending[lane0[best_row]]:
         w = LEFT if (left[best_row] >= 0 and lanes.n_successors[max(left[best_row], 0)] > 0) else RIGHT
-    return best_row, (0 if w == RIGHT else 1)
+    return lane0, right, left, best_row, (0 if w == RIGHT else 1)
 
 
 @jit

@@ -3,7 +3,7 @@ same-direction neighbours, merges (where entering lanes yield), crosswalk crossi
 kernels that read a lane's polyline (`centre_point`, `curve_speed`).
 
 Everything here is computed once per map (Python loops over lanes and crosswalks are fine at build time); the
-kernels take the tables as NamedTuples (`LaneTables`, `Crossings`, `Merges`).
+kernels take the tables as NamedTuples (`LaneTables`, `Polylines`, `Crossings`, `Merges`).
 """
 
 from __future__ import annotations
@@ -24,8 +24,7 @@ SPAWN_MARGIN = 5.0  # [m] from the lane ends
 
 
 class LaneTables(NamedTuple):
-    """Every lane (L,) of a TrafficMap, for kernels: size, graph, flat polyline and curve speeds (the map's
-    attributes of the same names; per vertex or segment: g, inv ... dk)."""
+    """Every lane (L,) of a TrafficMap, for kernels: size, graph, speeds (the map's attributes of the same names)."""
 
     length: np.ndarray  # [m]
     width: np.ndarray  # [m]
@@ -38,7 +37,16 @@ class LaneTables(NamedTuple):
     starts_at_merge: np.ndarray  # bool
     ending: np.ndarray  # bool: ends beside a neighbour that goes on (an on-ramp)
     in_junction: np.ndarray  # bool
-    base: np.ndarray  # [m] the lane's start in the flat arc-length coordinate
+    entry_speed: np.ndarray  # [m/s] the curve speed at each lane's start, anticipating its successors
+    anticipation: float  # [m/s^2] braking for the curves ahead
+
+
+class Polylines(NamedTuple):
+    """Every lane's centre line in one flat arc-length coordinate, for kernels (the map's attributes of the same
+    names; per vertex or segment: g, inv ... dk)."""
+
+    length: np.ndarray  # (L,) [m]
+    base: np.ndarray  # (L,) [m] the lane's start in the flat arc-length coordinate
     first: np.ndarray  # int: the lane's first vertex
     last_segment: np.ndarray  # int: the lane's last segment
     g: np.ndarray  # (V,) [m] flat arc length of every vertex
@@ -53,8 +61,6 @@ class LaneTables(NamedTuple):
     dv: np.ndarray
     k0: np.ndarray  # ... curvature [1/m]
     dk: np.ndarray
-    entry_speed: np.ndarray  # [m/s] the curve speed at each lane's start, anticipating its successors
-    anticipation: float  # [m/s^2] braking for the curves ahead
 
 
 class Crossings(NamedTuple):
@@ -120,6 +126,7 @@ class TrafficMap:
         # lanes of a road leaving the map, which all end)
         self.ending = (self.n_successors == 0) & (goes_on(self.left) | goes_on(self.right))
         self.lane_tables = LaneTables(*(getattr(self, name) for name in LaneTables._fields))
+        self.polylines = Polylines(*(getattr(self, name) for name in Polylines._fields))
         self._spawn_points()
 
     # --- flat polylines --------------------------------------------------------------------------------
@@ -146,7 +153,7 @@ class TrafficMap:
         """Centre-line x, y [m] and heading [rad] at arc length s [m] on `lane` (arrays of one shape; s is clamped
         to the lane)."""
         lane, s = np.broadcast_arrays(np.asarray(lane, dtype=np.int64), np.asarray(s, dtype=float))
-        x, y, h = centre_points(self.lane_tables, lane.ravel(), s.ravel())
+        x, y, h = centre_points(self.polylines, lane.ravel(), s.ravel())
         return x.reshape(lane.shape), y.reshape(lane.shape), h.reshape(lane.shape)
 
     def _curve_speed(self, lateral_accel: float, anticipation: float) -> None:
@@ -316,38 +323,38 @@ def find_segment(g, gq: float, first: int, last: int) -> int:
 
 
 @inline
-def flat_position(lanes, lane: int, s: float) -> float:
+def flat_position(lines, lane: int, s: float) -> float:
     """The flat arc length [m] of s [m] on `lane`, s clamped to the lane (NaN kept)."""
-    return lanes.base[lane] + minimum(maximum(s, 0.0), lanes.length[lane])
+    return lines.base[lane] + minimum(maximum(s, 0.0), lines.length[lane])
 
 
 @inline
-def segment_at(lanes, lane: int, s: float) -> tuple[int, float]:
+def segment_at(lines, lane: int, s: float) -> tuple[int, float]:
     """The segment of `lane` at s [m] (clamped to the lane) and the share u of it passed there."""
-    gq = flat_position(lanes, lane, s)
-    seg = find_segment(lanes.g, gq, lanes.first[lane], lanes.last_segment[lane])
-    return seg, (gq - lanes.g[seg]) * lanes.inv[seg]
+    gq = flat_position(lines, lane, s)
+    seg = find_segment(lines.g, gq, lines.first[lane], lines.last_segment[lane])
+    return seg, (gq - lines.g[seg]) * lines.inv[seg]
 
 
 @jit
-def centre_points(lanes, lane, s):
+def centre_points(lines, lane, s):
     """Centre-line x, y [m] and heading [rad] (K,) at s (K,) [m] on `lane` (K,) (s clamped to the lane)."""
     n = len(s)
     x, y, h = np.empty(n), np.empty(n), np.empty(n)
     for k in range(n):
-        seg, u = segment_at(lanes, lane[k], s[k])
-        x[k], y[k] = lanes.x0[seg] + u * lanes.dx[seg], lanes.y0[seg] + u * lanes.dy[seg]
-        h[k] = lanes.h0[seg] + u * lanes.dh[seg]
+        seg, u = segment_at(lines, lane[k], s[k])
+        x[k], y[k] = lines.x0[seg] + u * lines.dx[seg], lines.y0[seg] + u * lines.dy[seg]
+        h[k] = lines.h0[seg] + u * lines.dh[seg]
     return x, y, h
 
 
-@jit
-def curve_speed(lanes, lane, s):
+@inline
+def curve_speed(lines, lane, s):
     """The anticipated curve speed [m/s] (the curves ahead on `lane`, at `anticipation` braking; the next lane's
     are added with `entry_speed`) and the curvature [1/m] (F,) at s (F,) [m] on `lane` (F,)."""
     n = len(s)
     speed, kappa = np.empty(n), np.empty(n)
     for f in range(n):
-        seg, u = segment_at(lanes, lane[f], s[f])
-        speed[f], kappa[f] = lanes.v0[seg] + u * lanes.dv[seg], lanes.k0[seg] + u * lanes.dk[seg]
+        seg, u = segment_at(lines, lane[f], s[f])
+        speed[f], kappa[f] = lines.v0[seg] + u * lines.dv[seg], lines.k0[seg] + u * lines.dk[seg]
     return speed, kappa

@@ -51,10 +51,10 @@ from mjdrive.roads import RoadMap
 from mjdrive.roads.conflicts import ConflictZones
 from mjdrive.traffic import motion, state
 from mjdrive.traffic.conflicts import ApproachTable
-from mjdrive.traffic.following import accelerations, obstacles_now, path_leader
+from mjdrive.traffic.following import accelerations, path_leader
 from mjdrive.traffic.intentions import MERGE, SCENARIOS, YIELD, LaneRoles, Routes, fill_paths
 from mjdrive.traffic.lane_changes import lane_changes
-from mjdrive.traffic.lanes import Crossings, LaneTables, Merges, TrafficMap
+from mjdrive.traffic.lanes import Crossings, LaneTables, Merges, Polylines, TrafficMap
 from mjdrive.traffic.params import HIDDEN_Z, KIND_INDEX, PATH, ROAD_USER_TYPES, EgoState, TrafficConfig
 from mjdrive.traffic.pedestrians import (
     EGO_REACH,
@@ -72,10 +72,11 @@ _NO_PLAN = Poses(np.zeros((0, 0, 3)), np.zeros((0, 0, 4)), np.zeros((0, 0)), np.
 
 
 class MapTables(NamedTuple):
-    """The traffic's road as the kernels read it: lanes, crossings, roundabout merges (none under urban rules),
-    conflict-zone approaches (none without), and whether urban rules apply."""
+    """The traffic's road as the kernels read it: lanes, their centre lines, crossings, roundabout merges (none under
+    urban rules), conflict-zone approaches (none without), and whether urban rules apply."""
 
     lanes: LaneTables
+    polylines: Polylines
     crossings: Crossings
     merges: Merges
     approaches: ApproachTable
@@ -103,7 +104,7 @@ class Traffic:
         self.approaches = (ApproachTable.from_zones(conflicts, m.road_map, self.roles.ring) if self.urban
                            else ApproachTable.none())
         merges = Merges(*(a[:0] for a in m.merges)) if self.urban else m.merges  # urban: conflict zones instead
-        self.tables = MapTables(m.lane_tables, m.crossings, merges, self.approaches, self.urban)
+        self.tables = MapTables(m.lane_tables, m.polylines, m.crossings, merges, self.approaches, self.urban)
         self.routes = Routes(m.successors, m.n_successors, self.roles, -1, self.urban)
         self.kinds = tuple(kinds)
         unknown = set(self.kinds) - set(ROAD_USER_TYPES)
@@ -374,8 +375,7 @@ class Traffic:
         ego = self.ego
         ego_box = np.zeros(0) if ego is None else np.array(
             [ego.x, ego.y, ego.yaw, max(ego.speed, 0.0), ego.length / 2, ego.width / 2], dtype=float)
-        obstacles = obstacles_now(self.vehicles, self.pedestrian_slots, self.now, self.half_size, ego_box)
-        return accelerations(followers, agents, obstacles, self.vehicles, self.pedestrians, self.now.pos,
+        return accelerations(followers, agents, self.vehicles, self.pedestrians, self.now, self.half_size, ego_box,
                              self.tables, self.constants, accept_gap)
 
     # --- poses -------------------------------------------------------------------------------------------
@@ -384,7 +384,7 @@ class Traffic:
         to the start of each path lane)."""
         s, n = self.n_plan, self.n
         plan = Poses(np.empty((s, n, 3)), np.zeros((s, n, 4)), np.empty((s, n)), np.zeros((s, n)))
-        motion.vehicle_plan(self.vehicles, self.map.lane_tables, self._t_plan, start, self._hidden_vehicles,
+        motion.vehicle_plan(self.vehicles, self.map.polylines, self._t_plan, start, self._hidden_vehicles,
                             self.config.lane_change_length, plan)
         if self.np_:
             place_pedestrians(self.pedestrians, self._t_plan, plan)
@@ -412,7 +412,7 @@ class Traffic:
     def _vehicle_poses(self, out: Poses) -> None:
         """The vehicles' poses (and speeds) at their state now into out (Poses (1, N, ...))."""
         starts = motion.path_starts(self.vehicles.path, self.map.length)
-        motion.vehicle_plan(self.vehicles, self.map.lane_tables, np.zeros(1), starts, self._hidden_vehicles,
+        motion.vehicle_plan(self.vehicles, self.map.polylines, np.zeros(1), starts, self._hidden_vehicles,
                             self.config.lane_change_length, out, distances=False)
 
     # --- queries -----------------------------------------------------------------------------------------

@@ -60,7 +60,7 @@ def plan_distances(v, accel, t_plan):
 
 
 @jit
-def centre_poses(lanes, path, s, ds, before):
+def centre_poses(lines, path, s, ds, before):
     """Centre-line x, y [m] and heading [rad] (S, NV) of each vehicle's lane after moving ds (S, NV) [m] from s
     along its path (`before` (NV, PATH) [m]: to the start of each path lane; a dead end's vehicle stays on its last
     lane). Each vehicle's segment search goes on from its previous substep's."""
@@ -68,7 +68,7 @@ def centre_poses(lanes, path, s, ds, before):
     x = np.empty((n_s, n_v))
     y = np.empty((n_s, n_v))
     h = np.empty((n_s, n_v))
-    g = lanes.g
+    g = lines.g
     for n in range(n_v):
         last_index = -1  # the last lane on the path
         for j in range(n_p):
@@ -84,17 +84,17 @@ def centre_poses(lanes, path, s, ds, before):
                     k += 1
             k = min(k, last_index)
             lane = max(path[n, k], 0)
-            gq = flat_position(lanes, lane, p - before[n, k])
+            gq = flat_position(lines, lane, p - before[n, k])
             if lane == previous_lane and gq >= g[seg]:  # further along the same lane: walk on
-                while seg < lanes.last_segment[lane] and g[seg + 1] <= gq:
+                while seg < lines.last_segment[lane] and g[seg + 1] <= gq:
                     seg += 1
             else:
-                seg = find_segment(g, gq, lanes.first[lane], lanes.last_segment[lane])
+                seg = find_segment(g, gq, lines.first[lane], lines.last_segment[lane])
             previous_lane = lane
-            u = (gq - g[seg]) * lanes.inv[seg]
-            x[i, n] = lanes.x0[seg] + u * lanes.dx[seg]
-            y[i, n] = lanes.y0[seg] + u * lanes.dy[seg]
-            h[i, n] = lanes.h0[seg] + u * lanes.dh[seg]
+            u = (gq - g[seg]) * lines.inv[seg]
+            x[i, n] = lines.x0[seg] + u * lines.dx[seg]
+            y[i, n] = lines.y0[seg] + u * lines.dy[seg]
+            h[i, n] = lines.h0[seg] + u * lines.dh[seg]
     return x, y, h
 
 
@@ -156,7 +156,7 @@ def yaw_quats(yaw, out):
             out[i, j, 3] = math.sin(half)
 
 
-def vehicle_plan(vehicles, lanes, t_plan: np.ndarray, before: np.ndarray, hidden: np.ndarray,
+def vehicle_plan(vehicles, lines, t_plan: np.ndarray, before: np.ndarray, hidden: np.ndarray,
                  lane_change_length: float, out: Poses, distances: bool = True) -> None:
     """The vehicles' poses at the times t_plan (S,) [s] of a plan into `out` (their slots of its pos, yaw and
     speed): moved along their paths (`before`: `path_starts`) by `plan_distances` (or not at all, without
@@ -165,7 +165,7 @@ def vehicle_plan(vehicles, lanes, t_plan: np.ndarray, before: np.ndarray, hidden
         ds = plan_distances(vehicles.v, vehicles.accel, t_plan)
     else:
         ds = np.zeros((1, len(vehicles.v)))
-    x, y, h = centre_poses(lanes, vehicles.path, vehicles.s, ds, before)
+    x, y, h = centre_poses(lines, vehicles.path, vehicles.s, ds, before)
     d, yaw = lateral(vehicles, ds, h, lane_change_length)
     place_vehicles(vehicles, x, y, h, d, yaw, t_plan, hidden, out)
 
