@@ -33,15 +33,21 @@ from numba import njit  # noqa: E402  (after its cache directory is set)
 INTERPRETED = os.environ.get("MJDRIVE_INTERPRETED", "") not in ("", "0")  # the debug switch: kernels as Python
 
 
+# numpy's error model: a float division by zero gives inf or nan (as numpy's arithmetic does) instead of raising;
+# without the raise paths numba drops the reference counting of arrays read from NamedTuples inside loops (with them,
+# a zone's rules took three times as long). A division by zero is a bug in any kernel here either way.
+OPTIONS = {"cache": True, "nogil": True, "error_model": "numpy"}
+
+
 def jit(fn: Callable) -> Callable:
     """Compile `fn` (cached on disk; releases the GIL); interpreted: `fn` itself."""
-    return fn if INTERPRETED else njit(cache=True, nogil=True)(fn)
+    return fn if INTERPRETED else njit(**OPTIONS)(fn)
 
 
 def inline(fn: Callable) -> Callable:
     """A helper of kernels, inlined into them (no call, no reference counting of its array arguments); interpreted:
     `fn` itself."""
-    return fn if INTERPRETED else njit(inline="always", cache=True, nogil=True)(fn)
+    return fn if INTERPRETED else njit(inline="always", **OPTIONS)(fn)
 
 
 @inline

@@ -44,6 +44,8 @@ def compile_kernels() -> float:
             env.step(np.array([0.3, 0.0, 0.0]))
         traffic, route = env.task.traffic, env.task.route_lane
         traffic.leader(traffic.vehicles.path[0], 0.0)
+        if domain == "urban":
+            env.task.relevant_point()
         route.local_coordinates(route.centre[3])  # the scripted drivers' lane kernels
         route.max_abs_curvature(0.0, 20.0)
         route.point(1.0)

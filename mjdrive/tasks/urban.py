@@ -58,6 +58,8 @@ CONTROL_TIMESTEP = 0.1  # [s] 10 Hz
 SCENARIOS = (FOLLOW, "roundabout", "lane_change", "crossroad", "merge")  # the scenario one-hot, in order
 _SCENARIO_ONE_HOT = {name: np.eye(len(SCENARIOS), dtype=np.float32)[i] for i, name in enumerate(SCENARIOS)}
 _NO_INTENTIONS = np.zeros((0, len(INTENTION_SCENARIOS)), np.int64)  # the adversary rows' outside intention scenarios
+_SCENARIO_CODE = {name: i for i, name in enumerate(SCENARIOS)}
+_INTENTION_COLUMN = {name: i for i, name in enumerate(INTENTION_SCENARIOS)}  # the intentions' column by scenario
 PIECES = {"roundabout": ("roundabout",), "lane_change": ("road",), "crossroad": ("crossroad",),
           "merge": ("merge",), "concatenated": ("roundabout", "road", "crossroad", "merge")}
 SPEED_SCALE = 15.0  # [m/s] speeds normalised by this (§5.3's top speed)
@@ -116,6 +118,9 @@ class UrbanTask(DrivingTask):
         self._points = np.asarray(route.conflicts.point)[rc.zone] if len(rc) else np.zeros((0, 2))
         self._point_s = np.asarray(rc.s_point, dtype=float)
         self._point_scenario = np.array([route.tactical.scenario_at(s) for s in self._point_s])
+        self._route_points = kernels.RoutePoints(self._point_s, np.array(
+            [_SCENARIO_CODE[name] for name in self._point_scenario], dtype=np.int64), self._points)
+        self._scales = (SPEED_SCALE, config.off_route, self.route_end, DISTANCE_SCALE)
         # for the kernels: the tactical intervals as arrays
         intervals = route.tactical.intervals
         self._interval_starts = np.array([s0 for _, s0, _ in intervals], dtype=float)  # [m]
@@ -235,42 +240,47 @@ class UrbanTask(DrivingTask):
         spec.update(self.sensor_spec(physics))
         return spec
 
+    def _ego(self) -> tuple[float, ...]:
+        """(speed [m/s], heading error [rad], lane offset [m], route s [m], x [m], y [m]) for the kernels."""
+        return (self.speed, self.heading_error, self.lane_offset, self.route_s, *self._position)
+
     def _ego_vector(self) -> np.ndarray:
         """(4,) the ego's features in [0, 1] (module docstring)."""
         out = np.empty(4, np.float32)
-        kernels.ego_features(out, self.speed, self.heading_error, self.lane_offset, self.route_s, self.config.off_route,
-                             self.route_end, SPEED_SCALE)
+        kernels.ego_features(out, self._ego(), self._scales)
         return out
 
     def relevant_point(self) -> np.ndarray:
         """Where adversaries' distances are measured (§5.1.2): the next conflict point on the route within
         the active scenario; the ego itself on the two-lane road and outside every scenario."""
         scenario = self.active_scenario()
-        if scenario in (FOLLOW, "lane_change"):
-            return self.xy
-        ahead = np.flatnonzero((self._point_s >= self.route_s - 2.0) & (self._point_scenario == scenario))
-        return self._points[ahead[0]] if len(ahead) else self.xy
+        return np.array(kernels.relevant_point(self._route_points, _SCENARIO_CODE[scenario],
+                                               scenario in (FOLLOW, "lane_change"), self._ego()))
 
     def adversary_matrix(self) -> np.ndarray:
         """(n, 4) the n road users nearest the relevant point: present, distance, speed, intention (in [0, 1])."""
-        traffic, n = self.traffic, self.config.adversaries
-        out = np.zeros((n, ADVERSARY_COLUMNS), np.float32)
-        point = self.relevant_point()
-        scenario = self.scenario
-        column = INTENTION_SCENARIOS.index(scenario) if scenario in INTENTION_SCENARIOS else None
-        kernels.adversary_rows(out, traffic.present, traffic.positions(), float(point[0]), float(point[1]),
-                               traffic.speeds(), traffic.intentions() if column is not None else _NO_INTENTIONS,
-                               -1 if column is None else column, DISTANCE_SCALE, SPEED_SCALE)
-        return out
+        return self._features()[1]
+
+    def _features(self) -> tuple[np.ndarray, np.ndarray]:
+        """The "features" observation's ego (4,) and adversaries (n, 4) (`kernels.urban_features`)."""
+        traffic, scenario = self.traffic, self.scenario
+        column = _INTENTION_COLUMN.get(scenario, -1)
+        ego, adversaries = np.empty(4, np.float32), np.zeros((self.config.adversaries, ADVERSARY_COLUMNS), np.float32)
+        users = (traffic.present, traffic.positions(), traffic.speeds(),
+                 traffic.intentions() if column >= 0 else _NO_INTENTIONS)
+        kernels.urban_features(ego, adversaries, self._ego(), self._scales, self._route_points,
+                               _SCENARIO_CODE[scenario], scenario in (FOLLOW, "lane_change"), users, column)
+        return ego, adversaries
 
     def get_observation(self, physics: Physics) -> collections.OrderedDict:
-        ego = self._ego_vector()
         if self.observation == "camera":
             size = self.config.image_size
-            obs = collections.OrderedDict(image=self.render_camera(physics, "ego/front", size, size).copy(), ego=ego)
+            obs = collections.OrderedDict(image=self.render_camera(physics, "ego/front", size, size).copy(),
+                                          ego=self._ego_vector())
         else:
-            scenario = _SCENARIO_ONE_HOT[self.scenario].copy()
-            obs = collections.OrderedDict(ego=ego, scenario=scenario, adversaries=self.adversary_matrix())
+            ego, adversaries = self._features()
+            obs = collections.OrderedDict(ego=ego, scenario=_SCENARIO_ONE_HOT[self.scenario].copy(),
+                                          adversaries=adversaries)
         obs.update(self.sensor_observation(physics))
         return obs
 

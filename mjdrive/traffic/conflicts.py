@@ -238,10 +238,11 @@ def zone_state(agents, vehicles, approaches, c):
 
 
 @inline
-def zone_stops(row, courteous_f, r, zs, agents, approaches, vehicles, slot_pos, c):
-    """Follower `row` (an agent row; `courteous_f`: it opens gaps) at approach r (on its path): its stop line [m]
-    (inf: none), its virtual leader's gap [m] and speed [m/s] in a merge, and the distance [m] to its give-way line
-    while it gives way there and has not committed (inf: none, then it need not slow down for it).
+def zone_stops(followers, agents, vehicles, approaches, slot_pos, c):
+    """Every follower (`Followers`, rows of `agents`) at every approach on its path: its stop line [m] (inf: none), its
+    virtual leader's gap [m] and speed [m/s] in a merge, as pairs in follower then approach order (those of follower
+    f: start[f] to start[f + 1]); and per follower, the distance [m] to its nearest give-way line where it gives way
+    and has not committed (inf: none, then it need not slow down for one).
 
     Crossings: stop at the give-way line while a priority agent would reach the zone less than the critical gap
     after the follower has cleared it (on a tie: while another agent gets there first); stop at the zone's edge
@@ -249,87 +250,111 @@ def zone_stops(row, courteous_f, r, zs, agents, approaches, vehicles, slot_pos, 
     of the other lane nearer the merge point are virtual leaders of the yielding side, and of the priority side once
     committed (or, for a courteous vehicle, within `courtesy_range`); a yielding vehicle waits at its give-way line
     while a priority agent behind it in that order would come closer than its headway."""
+    zs = zone_state(agents, vehicles, approaches, c)
+    inside, ttz, held, stoppable_a, claiming, in_zone = zs.inside, zs.ttz, zs.held, zs.can_stop, zs.claiming, \
+        zs.in_zone  # (read in the loops below as locals: no reference counting there)
+    t_line, waiting, d_merge, near, on_lane, n_on = zs.t_line, zs.waiting, zs.d_merge, zs.near, zs.on_lane, zs.n_on
+    waited_a, courteous_a, needed, changing = zs.waited, zs.courteous, zs.needed, zs.changing[:zs.n_changing]
     ap = approaches
-    s_a, v_a, len_a = agents.s, agents.v, agents.length
-    front_me = -agents.offset[row, ap.lane[r]] + (s_a[row] + len_a[row] / 2)
-    timed, yields, tie = ap.timed[r], ap.yields[r], ap.tie[r]
-    gives_way = yields or tie
-    v_me, length_me = maximum(v_a[row], 0.0), len_a[row]
-    to_clear = maximum(ap.s_out[r] + length_me - front_me, 0.0)
-    t_clear = (np.sqrt(v_me * v_me + 2 * CLEAR_ACCEL * to_clear) - v_me) / CLEAR_ACCEL  # [s]
-    # Impatience: the critical gap shrinks to zero over `impatience` seconds of waiting (the gap must still let the
-    # follower clear the zone before the priority agent arrives).
-    waited = zs.waited[row]
-    critical = c.critical_gap_crossing * maximum(0.0, 1.0 - waited / c.impatience)
-    # Past its patience a vehicle standing at its give-way line claims the zone: priority vehicles that can still
-    # stop before their own line (braking at most CLAIM_DECEL) or stand before it stop there for it, and it no
-    # longer waits for them; never the ego, whose driver the traffic cannot count on.
-    me_stop = ap.stop[r] - front_me  # [m] to the follower's own give-way line
-    forcing = waited >= c.impatience and v_me < HELD_SPEED and me_stop < AT_LINE and me_stop >= -COMMITTED and yields
-    # --- crossings (and merges inside junctions) -------------------------------------------------------------
-    soon = claimed_any = promised = occupied = first = False
-    t_line_me = maximum(ap.stop[r] - front_me, 0.0) / maximum(v_a[row], c.merge_speed)
-    for k in range(zs.n_on[r]):  # the agents on the other lane (the others neither conflict nor lead here)
-        a = zs.on_lane[r, k]
-        if a == row:
-            continue
-        stoppable = forcing and zs.can_stop[a, r]
-        if not zs.held[a, r] and not stoppable and zs.ttz[a, r] < t_clear + critical:
-            soon = True
-        if zs.claiming[a, r]:
-            claimed_any = True
-        # Occupied: someone from the other lane is committed to the zone (past its give-way line) or in it. A
-        # vehicle not yet committed waits at its give-way line for either; a committed one stops at the zone's
-        # edge only for a vehicle physically in it (committed vehicles never wait for each other's promises,
-        # which could go round in a circle).
-        if zs.inside[a, r]:
-            promised = True
-        if zs.in_zone[a, r]:
-            occupied = True
-        # Ties: whoever reaches its give-way line sooner goes first, then whoever has waited longer, then the
-        # lower row: a strict order, so waiting never goes round in a circle.
-        if zs.waiting[a, r]:
-            longer = zs.waited[a] > waited or (zs.waited[a] == waited and a < row)
-            if zs.t_line[a, r] < t_line_me or (zs.t_line[a, r] == t_line_me and longer):
-                first = True
-    claimed = claimed_any and not yields and not tie and can_stop(v_me, me_stop)
-    for j in zs.changing[:zs.n_changing]:  # a vehicle moving over between lanes is on neither lane's path near
-        slot = vehicles.slot[j]  # the zone: judge it by distance
-        if j != row and np.hypot(slot_pos[slot, 0] - ap.point[r, 0], slot_pos[slot, 1] - ap.point[r, 1]) \
-                < CHANGING_RADIUS:
-            promised = True
-    wait_timed = timed and ((yields and soon) or (tie and first))
-    # --- merges: committed agents ahead are virtual leaders; outside junctions, a zipper ---------------------
-    d_me = ap.s_out[r] - front_me  # [m] my front bumper to the merge point
-    courteous = courteous_f and ap.courtesy[r] and d_me < c.courtesy_range
-    zipper = not timed and (gives_way or courteous)
-    leader_gap, leader = np.inf, 0
-    room_nearest, nearest = np.inf, 0
-    for k in range(zs.n_on[r]):
-        a = zs.on_lane[r, k]
-        if a == row or not zs.near[a, r]:
-            continue
-        d = zs.d_merge[a, r]
-        if ap.merge[r] and d < d_me and (zs.inside[a, r] or zipper):
-            spacing = d_me - d - len_a[a]
-            if spacing < leader_gap:
-                leader_gap, leader = spacing, a
-        if not timed and d >= d_me:
-            room = d - d_me - length_me
-            if room < room_nearest:
-                room_nearest, nearest = room, a
-    # Only the nearest agent behind matters (the follower's follower after the merge; the rest queue behind it),
-    # and not if it is courteous: it keeps its distance to the follower, a virtual leader of its own.
-    letting_in = zs.courteous[nearest] and ap.courtesy[r]
-    cut_off = np.isfinite(room_nearest) and not letting_in and room_nearest < zs.needed[nearest]
-    wait_merge = not timed and yields and cut_off
-    # --- stop lines -----------------------------------------------------------------------------------------
-    holding = me_stop > -COMMITTED  # not yet committed
-    edge = ap.s_in[r] - EDGE_MARGIN - front_me  # [m] to the zone's edge
-    line_gap = np.inf
-    if (wait_timed or wait_merge or (timed and (promised or claimed))) and holding:
-        line_gap = me_stop
-    if timed and occupied and edge > -COMMITTED:
-        line_gap = minimum(line_gap, edge)
-    to_line = me_stop if gives_way and holding else np.inf
-    return line_gap, leader_gap, v_a[leader], to_line
+    ap_lane, ap_s_in, ap_s_out, ap_stop, ap_point = ap.lane, ap.s_in, ap.s_out, ap.stop, ap.point
+    ap_timed, ap_yields, ap_tie, ap_merge, ap_courtesy = ap.timed, ap.yields, ap.tie, ap.merge, ap.courtesy
+    s_a, v_a, len_a, offset_a = agents.s, agents.v, agents.length, agents.offset
+    rows, courteous_f, slot = followers.row, followers.courteous, vehicles.slot
+    n_f, n_r = len(rows), len(ap_lane)
+    start = np.zeros(n_f + 1, dtype=np.int64)
+    for f in range(n_f):
+        start[f + 1] = start[f]
+        for r in range(n_r):
+            start[f + 1] += np.isfinite(offset_a[rows[f], ap_lane[r]])
+    line, leader_gaps, leader_speeds = np.empty(start[n_f]), np.empty(start[n_f]), np.empty(start[n_f])
+    to_give_way = np.full(n_f, np.inf)
+    p = 0
+    for f in range(n_f):
+        row = rows[f]
+        for r in range(n_r):
+            if not np.isfinite(offset_a[row, ap_lane[r]]):  # not on the follower's path
+                continue
+            front_me = -offset_a[row, ap_lane[r]] + (s_a[row] + len_a[row] / 2)
+            timed, yields, tie = ap_timed[r], ap_yields[r], ap_tie[r]
+            gives_way = yields or tie
+            v_me, length_me = maximum(v_a[row], 0.0), len_a[row]
+            to_clear = maximum(ap_s_out[r] + length_me - front_me, 0.0)
+            t_clear = (np.sqrt(v_me * v_me + 2 * CLEAR_ACCEL * to_clear) - v_me) / CLEAR_ACCEL  # [s]
+            # Impatience: the critical gap shrinks to zero over `impatience` seconds of waiting (the gap must still
+            # let the follower clear the zone before the priority agent arrives).
+            waited = waited_a[row]
+            critical = c.critical_gap_crossing * maximum(0.0, 1.0 - waited / c.impatience)
+            # Past its patience a vehicle standing at its give-way line claims the zone: priority vehicles that can
+            # still stop before their own line (braking at most CLAIM_DECEL) or stand before it stop there for it,
+            # and it no longer waits for them; never the ego, whose driver the traffic cannot count on.
+            me_stop = ap_stop[r] - front_me  # [m] to the follower's own give-way line
+            forcing = (waited >= c.impatience and v_me < HELD_SPEED and me_stop < AT_LINE and me_stop >= -COMMITTED
+                       and yields)
+            # --- crossings (and merges inside junctions) ---------------------------------------------------------
+            soon = claimed_any = promised = occupied = first = False
+            t_line_me = maximum(ap_stop[r] - front_me, 0.0) / maximum(v_a[row], c.merge_speed)
+            for k in range(n_on[r]):  # the agents on the other lane (the others neither conflict nor lead here)
+                a = on_lane[r, k]
+                if a == row:
+                    continue
+                stoppable = forcing and stoppable_a[a, r]
+                if not held[a, r] and not stoppable and ttz[a, r] < t_clear + critical:
+                    soon = True
+                if claiming[a, r]:
+                    claimed_any = True
+                # Occupied: someone from the other lane is committed to the zone (past its give-way line) or in it.
+                # A vehicle not yet committed waits at its give-way line for either; a committed one stops at the
+                # zone's edge only for a vehicle physically in it (committed vehicles never wait for each other's
+                # promises, which could go round in a circle).
+                if inside[a, r]:
+                    promised = True
+                if in_zone[a, r]:
+                    occupied = True
+                # Ties: whoever reaches its give-way line sooner goes first, then whoever has waited longer, then the
+                # lower row: a strict order, so waiting never goes round in a circle.
+                if waiting[a, r]:
+                    longer = waited_a[a] > waited or (waited_a[a] == waited and a < row)
+                    if t_line[a, r] < t_line_me or (t_line[a, r] == t_line_me and longer):
+                        first = True
+            claimed = claimed_any and not yields and not tie and can_stop(v_me, me_stop)
+            for j in changing:  # a vehicle moving over between lanes is on neither lane's path near the zone:
+                if j != row and np.hypot(slot_pos[slot[j], 0] - ap_point[r, 0],  # judge it by distance
+                                         slot_pos[slot[j], 1] - ap_point[r, 1]) < CHANGING_RADIUS:
+                    promised = True
+            wait_timed = timed and ((yields and soon) or (tie and first))
+            # --- merges: committed agents ahead are virtual leaders; outside junctions, a zipper -----------------
+            d_me = ap_s_out[r] - front_me  # [m] my front bumper to the merge point
+            courteous = courteous_f[f] and ap_courtesy[r] and d_me < c.courtesy_range
+            zipper = not timed and (gives_way or courteous)
+            leader_gap, leader = np.inf, 0
+            room_nearest, nearest = np.inf, 0
+            for k in range(n_on[r]):
+                a = on_lane[r, k]
+                if a == row or not near[a, r]:
+                    continue
+                d = d_merge[a, r]
+                if ap_merge[r] and d < d_me and (inside[a, r] or zipper):
+                    spacing = d_me - d - len_a[a]
+                    if spacing < leader_gap:
+                        leader_gap, leader = spacing, a
+                if not timed and d >= d_me:
+                    room = d - d_me - length_me
+                    if room < room_nearest:
+                        room_nearest, nearest = room, a
+            # Only the nearest agent behind matters (the follower's follower after the merge; the rest queue behind
+            # it), and not if it is courteous: it keeps its distance to the follower, a virtual leader of its own.
+            letting_in = courteous_a[nearest] and ap_courtesy[r]
+            cut_off = np.isfinite(room_nearest) and not letting_in and room_nearest < needed[nearest]
+            wait_merge = not timed and yields and cut_off
+            # --- stop lines -------------------------------------------------------------------------------------
+            holding = me_stop > -COMMITTED  # not yet committed
+            edge = ap_s_in[r] - EDGE_MARGIN - front_me  # [m] to the zone's edge
+            line_gap = np.inf
+            if (wait_timed or wait_merge or (timed and (promised or claimed))) and holding:
+                line_gap = me_stop
+            if timed and occupied and edge > -COMMITTED:
+                line_gap = minimum(line_gap, edge)
+            line[p], leader_gaps[p], leader_speeds[p] = line_gap, leader_gap, v_a[leader]
+            to_give_way[f] = minimum(to_give_way[f], me_stop if gives_way and holding else np.inf)
+            p += 1
+    return start, line, leader_gaps, leader_speeds, to_give_way

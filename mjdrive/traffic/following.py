@@ -14,7 +14,7 @@ import math
 import numpy as np
 
 from mjdrive.compiled import inline, jit, maximum, minimum
-from mjdrive.traffic.conflicts import zone_state, zone_stops
+from mjdrive.traffic.conflicts import zone_stops
 from mjdrive.traffic.lanes import curve_speed
 from mjdrive.traffic.merges import merge_state, merge_stops
 from mjdrive.traffic.pedestrians import BAND_MARGIN, SLOW_LEADER, crosswalk_stop, occupied_crossings
@@ -101,26 +101,27 @@ def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, k
     (s*/gap)^2, the least stopping room [m] (gap - s0 + v_lead^2 / 2 max_decel; inf if none) and the distance [m]
     to its nearest give-way line still ahead (inf if none). kappa: the curvature [1/m] at each follower (the
     corridor bends with it)."""
-    f_, lanes, crossings, merges, approaches = followers, tables.lanes, tables.crossings, tables.merges, \
-        tables.approaches
-    path, offset, s, v, length = f_.path, f_.offset, f_.s, f_.v, f_.length
-    n_f, n_a, n_o, n_k, n_r = len(s), len(agents.s), len(obstacles.row), len(crossings.lane), len(approaches.lane)
+    f_, lanes, crossings, merges = followers, tables.lanes, tables.crossings, tables.merges
+    # the arrays the loops read, as locals (reading a NamedTuple's array in a loop costs reference counting there)
+    path, offset, s, v, length, width, f_xy = f_.path, f_.offset, f_.s, f_.v, f_.length, f_.width, f_.xy
+    lane_a, s_a, v_a, len_a = agents.path[:, 0], agents.s, agents.v, agents.length
+    o_xy, o_speed, o_hl, o_hw, o_row = obstacles.xy, obstacles.speed, obstacles.half_length, obstacles.half_width, \
+        obstacles.row
+    n_f, n_a, n_o, n_k = len(s), len(s_a), len(o_row), len(crossings.lane)
     lead_gap = np.full(n_f, INF)
     interaction = np.zeros(n_f)
     room = np.full(n_f, INF)
-    to_give_way = np.full(n_f, INF)
     two_b = 2 * c.max_decel
     den = 2.0 * np.sqrt(f_.a_max * f_.b_comf)  # [m/s^2] IDM's 2 sqrt(a b)
     cos_f, sin_f = np.empty(n_f), np.empty(n_f)  # the followers' headings' cosines and sines (libm's, as numpy's)
     for f in range(n_f):
         cos_f[f], sin_f[f] = math.cos(f_.yaw[f]), math.sin(f_.yaw[f])
-    o_ = obstacles
     cos_o, sin_o = np.empty(n_o), np.empty(n_o)  # the obstacles'
     for o in range(n_o):
-        cos_o[o], sin_o[o] = math.cos(o_.yaw[o]), math.sin(o_.yaw[o])
+        cos_o[o], sin_o[o] = math.cos(obstacles.yaw[o]), math.sin(obstacles.yaw[o])
     blocked = occupied_crossings(pedestrians, crossings, c.crosswalk_margin + BAND_MARGIN)
     conflict, committed = merge_state(agents, vehicles, merges, slot_pos, accept_gap, c)
-    zones = zone_state(agents, vehicles, approaches, c)
+    z_start, z_line, z_gap, z_speed, to_give_way = zone_stops(f_, agents, vehicles, tables.approaches, slot_pos, c)
 
     for f in range(n_f):
         row, offset_f = f_.row[f], offset[f]
@@ -132,29 +133,29 @@ def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, k
         # 1. Leaders along the planned path (vehicles and the ego).
         best_path, best_a = INF, 0
         for a in range(n_a):
-            g = path_gap(offset_f, s[f], front, row, agents, a)
+            g = path_gap(offset_f, s[f], front, row, a, lane_a, s_a, len_a)
             if g < best_path:
                 best_path, best_a = g, a
-            state = _fold(state, g, agents.v[a], c.min_gap, vf, vT, den[f], two_b)
+            state = _fold(state, g, v_a[a], c.min_gap, vf, vT, den[f], two_b)
 
         # 2. Anything in the corridor ahead (curvature-corrected): vehicles, the ego, pedestrians.
         for o in range(n_o):
-            rx = o_.xy[o, 0] - f_.xy[f, 0]
-            ry = o_.xy[o, 1] - f_.xy[f, 1]
+            rx = o_xy[o, 0] - f_xy[f, 0]
+            ry = o_xy[o, 1] - f_xy[f, 1]
             dx = cos_f[f] * rx + sin_f[f] * ry
             dy = -sin_f[f] * rx + cos_f[f] * ry - 0.5 * kappa[f] * dx * dx
             cos_d = cos_o[o] * cos_f[f] + sin_o[o] * sin_f[f]  # of the obstacle's yaw relative to the follower
             cd, sd = abs(cos_d), abs(sin_o[o] * cos_f[f] - cos_o[o] * sin_f[f])
-            hl, hw = o_.half_length[o], o_.half_width[o]
-            inside = dx > 0 and dx < c.corridor_range and o_.row[o] != row
-            inside = inside and abs(dy) < (f_.width[f] / 2 + c.corridor_margin) + sd * hl + cd * hw
+            hl, hw = o_hl[o], o_hw[o]
+            inside = dx > 0 and dx < c.corridor_range and o_row[o] != row
+            inside = inside and abs(dy) < (width[f] / 2 + c.corridor_margin) + sd * hl + cd * hw
             g = dx - length[f] / 2 - cd * hl - sd * hw if inside else INF
-            state = _fold(state, g, o_.speed[o] * cos_d, c.min_gap, vf, vT, den[f], two_b)
+            state = _fold(state, g, o_speed[o] * cos_d, c.min_gap, vf, vT, den[f], two_b)
 
         # 3. Crosswalk stop lines.
         if n_k:
             leader_gap = minimum(best_path, 1e9)
-            slow_leader = leader_gap < 1e9 and agents.v[best_a] < SLOW_LEADER
+            slow_leader = leader_gap < 1e9 and v_a[best_a] < SLOW_LEADER
             for k in range(n_k):
                 g = crosswalk_stop(offset_f, front, length[f], crossings, k, blocked[k], slow_leader, leader_gap,
                                    c.crosswalk_margin, c.min_gap)
@@ -168,14 +169,9 @@ def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, k
             state = _fold(state, keep_out, 0.0, c.stop_gap, vf, vT, den[f], two_b)
 
         # 5. Urban rules: conflict zones on the follower's path.
-        for r in range(n_r):
-            if not np.isfinite(agents.offset[row, approaches.lane[r]]):  # not on the follower's path
-                continue
-            line_gap, leader_gap, leader_speed, to_line = zone_stops(row, f_.courteous[f], r, zones, agents,
-                                                                     approaches, vehicles, slot_pos, c)
-            to_give_way[f] = minimum(to_give_way[f], to_line)
-            state = _fold(state, line_gap, 0.0, c.stop_gap, vf, vT, den[f], two_b)
-            state = _fold(state, leader_gap, leader_speed, c.min_gap, vf, vT, den[f], two_b)
+        for k in range(z_start[f], z_start[f + 1]):
+            state = _fold(state, z_line[k], 0.0, c.stop_gap, vf, vT, den[f], two_b)
+            state = _fold(state, z_gap[k], z_speed[k], c.min_gap, vf, vT, den[f], two_b)
 
         # ... and the end of an ending lane (an on-ramp) is a wall until the vehicle has moved over.
         if tables.urban:
@@ -194,23 +190,24 @@ def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, k
 
 
 @inline
-def path_gap(offset_f, s, front, row, agents, a):
+def path_gap(offset_f, s, front, row, a, lane_a, s_a, len_a):
     """The gap [m] from a follower (agent `row`, at s [m] along its lane, its front bumper at `front` [m]; offset_f:
     its row of `Agents.offset`) to agent a's rear bumper if a is ahead on its path (at the same s: the higher row is
-    ahead), else inf."""
-    pos = offset_f[agents.path[a, 0]] + agents.s[a]
+    ahead), else inf (the agents' lanes, s [m] and lengths [m]: lane_a, s_a, len_a)."""
+    pos = offset_f[lane_a[a]] + s_a[a]
     ahead = (pos > s or (pos == s and a > row)) and a != row
-    return pos - front - agents.length[a] / 2 if ahead else INF
+    return pos - front - len_a[a] / 2 if ahead else INF
 
 
 @jit
 def path_leader(agents, row):
     """The nearest agent ahead of agent `row` on its path: the gap [m] from its front bumper to that agent's rear
     bumper and that agent's speed [m/s] ((inf, 0.0): none)."""
-    s, front, offset_row = agents.s[row], agents.s[row] + agents.length[row] / 2, agents.offset[row]
+    lane_a, s_a, len_a = agents.path[:, 0], agents.s, agents.length
+    s, front, offset_row = s_a[row], s_a[row] + len_a[row] / 2, agents.offset[row]
     best, speed = INF, 0.0
-    for a in range(len(agents.s)):
-        g = path_gap(offset_row, s, front, row, agents, a)
+    for a in range(len(s_a)):
+        g = path_gap(offset_row, s, front, row, a, lane_a, s_a, len_a)
         if g < best:
             best, speed = g, agents.v[a]
     return best, speed

@@ -21,14 +21,14 @@ BEHIND_HEADWAY = 1.2  # [s] ... min_gap plus the agent behind's speed times this
 BEHIND_MARGIN = 2.0  # [m]
 
 
-def lane_changes(vehicles, agents, lanes, routes, config, c, rng: np.random.Generator, time: float,
+def lane_changes(vehicles, kinds, agents, lanes, routes, config, c, rng: np.random.Generator, time: float,
                  now_pos: np.ndarray, ego, zone_points: np.ndarray) -> bool:
-    """At most one lane change per decision (in place), into a same-direction neighbour lane that has room: at
-    random rates (`lane_changes="random"`) or, under urban rules (`"intention"`), by each vehicle's lane-change
-    intention after `signal_time` of signalling, if the new follower need not brake harder than `safe_decel`
-    (MOBIL's safety criterion). `agents`: the decision's Agents; now_pos: the slots' positions (N, 3) [m];
-    zone_points: (R, 2) [m] the conflict zones' points (no intended change starts near them); config: the
-    TrafficConfig, c: its Constants. True if a vehicle changed lane."""
+    """At most one lane change per decision (in place), into a same-direction neighbour lane that has room: at random
+    rates (`lane_changes="random"`) or, under urban rules (`"intention"`), by each vehicle's lane-change intention after
+    `signal_time` of signalling, if the new follower need not brake harder than `safe_decel` (MOBIL's safety criterion).
+    kinds: the vehicles' `VehicleKinds`; `agents`: the decision's Agents; now_pos: the slots' positions (N, 3) [m];
+    zone_points: (R, 2) [m] the conflict zones' points (no intended change starts near them); config: the TrafficConfig,
+    c: its Constants. True if a vehicle changed lane."""
     if config.lane_changes == "intention":
         lane0, right, left, row, side = intended_lane_change(vehicles, lanes, routes.roles.priority, now_pos,
                                                              zone_points, time, c)
@@ -37,7 +37,7 @@ def lane_changes(vehicles, agents, lanes, routes, config, c, rng: np.random.Gene
         row, side = _random_try(rows, config, rng)
     if row < 0:
         return False
-    return _change(vehicles, agents, lanes, routes, config, rng, now_pos, ego, row, side, lane0, right, left)
+    return _change(vehicles, kinds, agents, lanes, routes, config, rng, now_pos, ego, row, side, lane0, right, left)
 
 
 def _random_try(rows: np.ndarray, config, rng: np.random.Generator) -> tuple[int, int]:
@@ -54,8 +54,8 @@ def _random_try(rows: np.ndarray, config, rng: np.random.Generator) -> tuple[int
     return row, side
 
 
-def _change(vehicles, agents, lanes, routes, config, rng: np.random.Generator, now_pos: np.ndarray, ego, row: int,
-            side: int, lane0: np.ndarray, right: np.ndarray, left: np.ndarray) -> bool:
+def _change(vehicles, kinds, agents, lanes, routes, config, rng: np.random.Generator, now_pos: np.ndarray, ego,
+            row: int, side: int, lane0: np.ndarray, right: np.ndarray, left: np.ndarray) -> bool:
     """Move vehicle `row` to its right (side 0) or left (1) neighbour if the target lane has room."""
     target = int(right[row] if side == 0 else left[row])
     if target < 0:
@@ -76,7 +76,7 @@ def _change(vehicles, agents, lanes, routes, config, rng: np.random.Generator, n
     if ego is not None and np.hypot(*(now_pos[vehicles.slot[row], :2] - (ego.x, ego.y))) < EGO_CLEARANCE:
         return False
     if (config.lane_changes == "intention" and behind >= 0
-            and not safe_for_follower(vehicles, row, behind, gap_behind, agents.v[behind], config)):
+            and not safe_for_follower(vehicles, kinds, row, behind, gap_behind, agents.v[behind], config)):
         return False
     shift = lanes.width[lane0[row]] * (1.0 if side == 0 else -1.0)  # the old centre seen from the new lane
     sm, _ = smoothstep(vehicles.lc_dist[row] / config.lane_change_length)
@@ -91,12 +91,12 @@ def _change(vehicles, agents, lanes, routes, config, rng: np.random.Generator, n
     return True
 
 
-def safe_for_follower(vehicles, row: int, j: int, gap: float, vf: float, config) -> bool:
+def safe_for_follower(vehicles, kinds, row: int, j: int, gap: float, vf: float, config) -> bool:
     """MOBIL's safety criterion: the nearest agent `j` behind in the target lane (gap [m], speed vf [m/s]), with
     the changer `row` as its new leader, needs an IDM deceleration of at most `safe_decel` (the ego, agent row NV,
     counts with `EGO_IDM`'s parameters)."""
     nv = len(vehicles.v)
-    a, b, headway = (vehicles.a_max[j], vehicles.b_comf[j], vehicles.headway[j]) if j < nv else EGO_IDM
+    a, b, headway = (kinds.a_max[j], kinds.b_comf[j], kinds.headway[j]) if j < nv else EGO_IDM
     vc = vehicles.v[row]
     s_star = config.min_gap + max(0.0, vf * headway + vf * (vf - vc) / (2.0 * np.sqrt(a * b)))
     decel = a * ((s_star / max(gap, 0.05)) ** 2 - 1.0)

@@ -65,7 +65,7 @@ from mjdrive.traffic.pedestrians import (
     start_crossing,
 )
 from mjdrive.traffic.spawning import Spawner, SpawnPoints
-from mjdrive.traffic.state import Agents, Followers, PlanCursor, Poses
+from mjdrive.traffic.state import Agents, Followers, PlanCursor, Poses, VehicleKinds
 
 EGO_DECEL = 3.0  # [m/s^2] the ego's comfortable deceleration, as pedestrians judge whether it could stop
 _NO_PLAN = Poses(np.zeros((0, 0, 3)), np.zeros((0, 0, 4)), np.zeros((0, 0)), np.zeros((0, 0)))
@@ -120,10 +120,10 @@ class Traffic:
         self.nv, self.np_ = len(self.vehicle_slots), len(self.pedestrian_slots)
         vt = [types[i] for i in self.vehicle_slots]
         half = self.half_size[self.vehicle_slots]  # [m]
-        self.vehicles = state.new_vehicles(state.Vehicles(
-            self.vehicle_slots, 2 * half[:, 0], 2 * half[:, 1], np.array([t.accel for t in vt]),
-            np.array([t.decel for t in vt]), np.array([t.headway for t in vt]), *[None] * 15))
-        self._b_agents = np.append(self.vehicles.b_comf, EGO_DECEL)  # [m/s^2] comfortable decelerations, ego last
+        self.vehicles = state.new_vehicles(self.vehicle_slots, 2 * half[:, 0])
+        self.vehicle_kinds = VehicleKinds(2 * half[:, 1], np.array([t.accel for t in vt]),
+                                          np.array([t.decel for t in vt]), np.array([t.headway for t in vt]))
+        self._b_agents = np.append(self.vehicle_kinds.b_comf, EGO_DECEL)  # [m/s^2] comfortable decelerations; ego
         self.spawner = Spawner(m, spawn_points, np.array([t.speed for t in vt]).reshape(-1, 2),
                                np.array([t.lateral for t in vt]).reshape(-1, 2), cfg, self.urban)
         self._walk_range = np.array([types[i].speed for i in self.pedestrian_slots]).reshape(-1, 2)
@@ -171,7 +171,7 @@ class Traffic:
         self._views = None
 
     def _reset_state(self) -> None:
-        self.vehicles = state.new_vehicles(self.vehicles)
+        self.vehicles = state.new_vehicles(self.vehicles.slot, self.vehicles.length)
         n = self.np_
         self.pedestrians = self.pedestrians._replace(u=np.zeros(n), direction=np.ones(n),
                                                      walking=np.zeros(n, dtype=bool), wait=np.zeros(n),
@@ -338,17 +338,16 @@ class Traffic:
     def _decide(self) -> None:
         """New accelerations, lane changes, spawns and pedestrian starts; then the plan of poses."""
         v, cfg = self.vehicles, self.config
-        if self.urban:
-            motion.count_waiting(v, cfg.decision_period)
-        self.stats["despawned"] += motion.move_on(v, self.routes, self.map.length, self.rng)
+        self.stats["despawned"] += motion.move_on(v, self.routes, self.map.length, self.rng,
+                                                  cfg.decision_period if self.urban else 0.0)
         spawned = self.spawner.spawn(v, self.routes, self.generation, self.now.pos, self.ego, self.rng,
                                      self.intent_rng)
         if spawned:
             self.stats["spawned"] += spawned
             self._refresh_vehicle_poses()
         agents = self.agents()
-        if lane_changes(v, agents, self.map.lane_tables, self.routes, cfg, self.constants, self.rng, self.time,
-                        self.now.pos, self.ego, self.approaches.point):
+        if lane_changes(v, self.vehicle_kinds, agents, self.map.lane_tables, self.routes, cfg, self.constants, self.rng,
+                        self.time, self.now.pos, self.ego, self.approaches.point):
             self.stats["lane_changes"] += 1
             agents = self.agents()
         if self.np_:
@@ -357,7 +356,7 @@ class Traffic:
             start_crossing(self.pedestrians, agents, self._b_agents, self.map.crossings,
                            0.0 if ego is None else ego.x, 0.0 if ego is None else ego.y, reach)
         followers = Followers(np.arange(self.nv), agents.path[: self.nv], agents.offset[: self.nv], v.s, v.v, v.v0,
-                              v.length, v.width, v.a_max, v.b_comf, v.headway, self.now.pos[v.slot, :2],
+                              v.length, *self.vehicle_kinds, self.now.pos[v.slot, :2],
                               self.now.yaw[v.slot], v.intention[:, MERGE] == YIELD)
         accel, v.lead_gap[:] = self._accelerations(followers, agents, cfg.accept_gap)
         v.accel[:] = np.where(v.active, accel, 0.0)

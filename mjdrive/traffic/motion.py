@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from mjdrive.compiled import jit, maximum
+from mjdrive.compiled import inline, jit, maximum
 from mjdrive.traffic.geometry import smoothstep
 from mjdrive.traffic.intentions import next_lanes
 from mjdrive.traffic.lanes import find_segment, flat_position
@@ -68,7 +68,8 @@ def centre_poses(lines, path, s, ds, before):
     x = np.empty((n_s, n_v))
     y = np.empty((n_s, n_v))
     h = np.empty((n_s, n_v))
-    g = lines.g
+    g, first, last_segment, inv = lines.g, lines.first, lines.last_segment, lines.inv
+    x0, dx, y0, dy, h0, dh = lines.x0, lines.dx, lines.y0, lines.dy, lines.h0, lines.dh
     for n in range(n_v):
         last_index = -1  # the last lane on the path
         for j in range(n_p):
@@ -86,15 +87,15 @@ def centre_poses(lines, path, s, ds, before):
             lane = max(path[n, k], 0)
             gq = flat_position(lines, lane, p - before[n, k])
             if lane == previous_lane and gq >= g[seg]:  # further along the same lane: walk on
-                while seg < lines.last_segment[lane] and g[seg + 1] <= gq:
+                while seg < last_segment[lane] and g[seg + 1] <= gq:
                     seg += 1
             else:
-                seg = find_segment(g, gq, lines.first[lane], lines.last_segment[lane])
+                seg = find_segment(g, gq, first[lane], last_segment[lane])
             previous_lane = lane
-            u = (gq - g[seg]) * lines.inv[seg]
-            x[i, n] = lines.x0[seg] + u * lines.dx[seg]
-            y[i, n] = lines.y0[seg] + u * lines.dy[seg]
-            h[i, n] = lines.h0[seg] + u * lines.dh[seg]
+            u = (gq - g[seg]) * inv[seg]
+            x[i, n] = x0[seg] + u * dx[seg]
+            y[i, n] = y0[seg] + u * dy[seg]
+            h[i, n] = h0[seg] + u * dh[seg]
     return x, y, h
 
 
@@ -117,6 +118,7 @@ def place_vehicles(vehicles, x, y, h, d, yaw, t_plan, hidden, out):
     n_s, n_v = x.shape
     one_d = d.shape[0] == 1
     v, accel, active, slots = vehicles.v, vehicles.accel, vehicles.active, vehicles.slot
+    out_pos, out_yaw, out_speed = out.pos, out.yaw, out.speed
     sin_h, cos_h = np.empty(n_v), np.empty(n_v)  # each vehicle's last heading's (libm's, as numpy's): a heading
     last_h = np.full(n_v, np.nan)  # held (along a straight, at rest) is not computed again (zeros are: their sign)
     for i in range(n_s):
@@ -128,17 +130,17 @@ def place_vehicles(vehicles, x, y, h, d, yaw, t_plan, hidden, out):
                 hn = h[i, n]
                 if hn != last_h[n] or hn == 0.0:
                     sin_h[n], cos_h[n], last_h[n] = math.sin(hn), math.cos(hn), hn
-                out.pos[i, slot, 0] = x[i, n] - sin_h[n] * dn
-                out.pos[i, slot, 1] = y[i, n] + cos_h[n] * dn
-                out.pos[i, slot, 2] = 0.0
-                out.yaw[i, slot] = yaw[i, n]
-                out.speed[i, slot] = maximum(v[n] + accel[n] * t, 0.0)
+                out_pos[i, slot, 0] = x[i, n] - sin_h[n] * dn
+                out_pos[i, slot, 1] = y[i, n] + cos_h[n] * dn
+                out_pos[i, slot, 2] = 0.0
+                out_yaw[i, slot] = yaw[i, n]
+                out_speed[i, slot] = maximum(v[n] + accel[n] * t, 0.0)
             else:
-                out.pos[i, slot, 0] = hidden[n, 0]
-                out.pos[i, slot, 1] = hidden[n, 1]
-                out.pos[i, slot, 2] = hidden[n, 2]
-                out.yaw[i, slot] = 0.0
-                out.speed[i, slot] = maximum(v[n] + accel[n] * t, 0.0) * 0.0  # as numpy's x * False
+                out_pos[i, slot, 0] = hidden[n, 0]
+                out_pos[i, slot, 1] = hidden[n, 1]
+                out_pos[i, slot, 2] = hidden[n, 2]
+                out_yaw[i, slot] = 0.0
+                out_speed[i, slot] = maximum(v[n] + accel[n] * t, 0.0) * 0.0  # as numpy's x * False
 
 
 @jit
@@ -175,7 +177,7 @@ def commit_vehicles(vehicles, t_end, t_end2):
     """The vehicles' state `t_end` [s] into the plan (`t_end2` = t_end**2 as numpy squares it), in place: the
     distance each moved at its constant acceleration, stopping at rest, added to s and lc_dist [m]; its new speed
     [m/s] (0 for inactive vehicles)."""
-    v, accel, active = vehicles.v, vehicles.accel, vehicles.active
+    v, accel, active, s, lc_dist = vehicles.v, vehicles.accel, vehicles.active, vehicles.s, vehicles.lc_dist
     for r in range(len(v)):
         vr, ar = v[r], accel[r]
         if active[r]:
@@ -185,27 +187,27 @@ def commit_vehicles(vehicles, t_end, t_end2):
                 ds = vr * t_end + 0.5 * ar * t_end2
         else:
             ds = 0.0
-        vehicles.s[r] += ds
-        vehicles.lc_dist[r] += ds
+        s[r] += ds
+        lc_dist[r] += ds
         v[r] = maximum(vr + ar * t_end, 0.0) if active[r] else 0.0
 
 
-@jit
+@inline
 def count_waiting(vehicles, period):
     """Each vehicle's waiting time [s] one decision period [s] on, in place: reset unless it is active and slower
     than STOPPED_SPEED (creeping up to a give-way line does not reset it)."""
-    for r in range(len(vehicles.v)):
-        waiting = vehicles.active[r] and vehicles.v[r] < STOPPED_SPEED
-        vehicles.stopped_time[r] = vehicles.stopped_time[r] + period if waiting else 0.0
+    active, v, stopped_time = vehicles.active, vehicles.v, vehicles.stopped_time
+    for r in range(len(v)):
+        stopped_time[r] = stopped_time[r] + period if active[r] and v[r] < STOPPED_SPEED else 0.0
 
 
-@jit
+@inline
 def lanes_passed(vehicles, lane_length):
     """One round of moving on along the paths, in place: active vehicles past the end of their lane (s >= its
     length [m]) move on to the next lane of their path (s less that length, the path shifted by one, its last
     entry left for the caller to draw); those whose path ends there leave the map (inactive, speed 0). Returns
     the rows that moved on (K,), in order, and how many of them left."""
-    path, s, active = vehicles.path, vehicles.s, vehicles.active
+    path, s, active, v = vehicles.path, vehicles.s, vehicles.active, vehicles.v
     n_v, n_p = path.shape
     rows = np.empty(n_v, dtype=np.int64)
     k = 0
@@ -221,9 +223,18 @@ def lanes_passed(vehicles, lane_length):
             path[r, c] = path[r, c + 1]
         if path[r, 0] < 0:
             active[r] = False
-            vehicles.v[r] = 0.0
+            v[r] = 0.0
             gone += 1
     return rows[:k], gone
+
+
+@jit
+def end_period(vehicles, lane_length, waiting_period):
+    """A decision period over: the waiting times run on by `waiting_period` [s] (urban rules; 0: not counted;
+    `count_waiting`), then one round of `lanes_passed`."""
+    if waiting_period > 0:
+        count_waiting(vehicles, waiting_period)
+    return lanes_passed(vehicles, lane_length)
 
 
 @jit
@@ -241,10 +252,10 @@ def extend_then_lanes_passed(vehicles, routes, lane_length, rows, u):
     return lanes_passed(vehicles, lane_length)
 
 
-def move_on(vehicles, routes, lane_length: np.ndarray, rng: np.random.Generator) -> int:
-    """Vehicles past the end of their lane move on along their path, drawing the lanes their paths gain (or leave
-    the map at dead ends); how many left."""
-    rows, gone = lanes_passed(vehicles, lane_length)
+def move_on(vehicles, routes, lane_length: np.ndarray, rng: np.random.Generator, waiting_period: float) -> int:
+    """A decision period over (`end_period`), vehicles past the end of their lane move on along their path, drawing
+    the lanes their paths gain (or leave the map at dead ends); how many left."""
+    rows, gone = end_period(vehicles, lane_length, waiting_period)
     left = 0
     while len(rows):
         left += gone

@@ -19,14 +19,10 @@ INF = np.inf
 
 
 class Vehicles(NamedTuple):
-    """Every vehicle (NV,): its kind's constants, then its state (reset each episode)."""
+    """Every vehicle (NV,): its slot and length, then its state (reset each episode)."""
 
     slot: np.ndarray  # (NV,) int: the vehicle's slot among all road users
     length: np.ndarray  # [m]
-    width: np.ndarray  # [m]
-    a_max: np.ndarray  # [m/s^2] IDM's maximum acceleration a
-    b_comf: np.ndarray  # [m/s^2] IDM's comfortable deceleration b
-    headway: np.ndarray  # [s] IDM's time headway T
     active: np.ndarray  # bool: on the map
     path: np.ndarray  # (NV, PATH) int: the current lane and the next ones (-1: none)
     s: np.ndarray  # [m] along path[:, 0]
@@ -44,13 +40,24 @@ class Vehicles(NamedTuple):
     stopped_time: np.ndarray  # [s] since the vehicle last moved (at decisions)
 
 
-def new_vehicles(kinds: Vehicles) -> Vehicles:
-    """`kinds`' constants (its fields up to `headway`) with a fresh state: nobody on the map."""
-    nv = len(kinds.slot)
-    return kinds._replace(
-        active=np.zeros(nv, dtype=bool), path=np.full((nv, PATH), -1, dtype=np.int64), s=np.zeros(nv),
-        v=np.zeros(nv), v0=np.zeros(nv), d_pref=np.zeros(nv), lc_shift=np.zeros(nv), lc_dist=np.full(nv, 1e9),
-        accel=np.zeros(nv), lead_gap=np.zeros(nv), intention=np.zeros((nv, 4), dtype=np.int64),
+class VehicleKinds(NamedTuple):
+    """Every vehicle's kind (NV,) as the IDM and the corridor see it (read in Python, into `Followers`; kernels take
+    only the arrays they read, and each array a kernel takes costs its call some 0.15 us)."""
+
+    width: np.ndarray  # [m]
+    a_max: np.ndarray  # [m/s^2] IDM's maximum acceleration a
+    b_comf: np.ndarray  # [m/s^2] IDM's comfortable deceleration b
+    headway: np.ndarray  # [s] IDM's time headway T
+
+
+def new_vehicles(slot: np.ndarray, length: np.ndarray) -> Vehicles:
+    """Vehicles in `slot` of `length` [m] with a fresh state: nobody on the map."""
+    nv = len(slot)
+    return Vehicles(
+        slot=slot, length=length, active=np.zeros(nv, dtype=bool), path=np.full((nv, PATH), -1, dtype=np.int64),
+        s=np.zeros(nv), v=np.zeros(nv), v0=np.zeros(nv), d_pref=np.zeros(nv), lc_shift=np.zeros(nv),
+        lc_dist=np.full(nv, 1e9), accel=np.zeros(nv), lead_gap=np.zeros(nv),
+        intention=np.zeros((nv, 4), dtype=np.int64),
         ring_passed=np.zeros(nv, dtype=bool), lc_signal=np.full(nv, -1.0), lc_changing=np.zeros(nv, dtype=bool),
         stopped_time=np.zeros(nv))
 
@@ -156,16 +163,17 @@ def agents_on_paths(vehicles, ego_path, ego_s, ego_v, ego_length, lane_length, n
     """The vehicles and the ego (last row, `ego_path`, s [m], speed [m/s], length [m]) as `Agents`: their paths
     (-1 rows for inactive vehicles), the distance from each one's lane start to the start of each lane on its path,
     and to the start of every lane (inf off the path; the first occurrence on a path wins)."""
-    nv, n_p = vehicles.path.shape
+    v_path, active, v_s, v_v, v_length = vehicles.path, vehicles.active, vehicles.s, vehicles.v, vehicles.length
+    nv, n_p = v_path.shape
     s_a, v_a, length_a = np.empty(nv + 1), np.empty(nv + 1), np.empty(nv + 1)
     for r in range(nv):
-        s_a[r], v_a[r], length_a[r] = vehicles.s[r], vehicles.v[r], vehicles.length[r]
+        s_a[r], v_a[r], length_a[r] = v_s[r], v_v[r], v_length[r]
     s_a[nv], v_a[nv], length_a[nv] = ego_s, ego_v, ego_length
     path = np.full((nv + 1, n_p), -1, dtype=np.int64)
     for r in range(nv):
-        if vehicles.active[r]:
+        if active[r]:
             for j in range(n_p):
-                path[r, j] = vehicles.path[r, j]
+                path[r, j] = v_path[r, j]
     for j in range(len(ego_path)):
         path[nv, j] = ego_path[j]
     start = np.zeros((nv + 1, n_p))
