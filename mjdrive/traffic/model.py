@@ -59,9 +59,8 @@ from mjdrive.traffic.params import HIDDEN_Z, KIND_INDEX, PATH, ROAD_USER_TYPES, 
 from mjdrive.traffic.pedestrians import (
     EGO_REACH,
     EGO_REACH_PER_SPEED,
-    arrivals,
+    new_waits,
     on_crosswalks,
-    place_pedestrians,
     start_crossing,
 )
 from mjdrive.traffic.spawning import Spawner, SpawnPoints
@@ -180,9 +179,9 @@ class Traffic:
         self._plan: Poses | None = None
         self._k = 0  # index of the current substep in the plan
         self._accumulated = 0.0
-        quat = np.zeros((1, self.n, 4))
-        motion.yaw_quats(np.zeros((1, self.n)), quat)
-        self.now = Poses(self._hidden.copy(), quat[0], np.zeros(self.n), np.zeros(self.n))
+        quat = np.zeros((self.n, 4))
+        quat[:, 0] = 1.0  # yaw 0: cos 0 = 1, sin 0 = 0
+        self.now = Poses(self._hidden.copy(), quat, np.zeros(self.n), np.zeros(self.n))
 
     # --- episodes --------------------------------------------------------------------------------------
     def reset(self, rng: np.random.Generator, ego: EgoState | None = None, keep_clear: float = 12.0,
@@ -328,9 +327,8 @@ class Traffic:
     def _commit(self, k: int = -1) -> None:
         """Make the plan's substep k (default: its end) the new state."""
         t_end = self._t_plan[k]
-        motion.commit_vehicles(self.vehicles, t_end, t_end**2)
-        if self.np_:
-            arrivals(self.pedestrians, t_end, self.config.pedestrian_wait, self.rng)
+        arrived = motion.commit(self.vehicles, self.pedestrians, t_end, t_end**2)
+        new_waits(self.pedestrians, arrived, self.config.pedestrian_wait, self.rng)
         self.now = Poses(*(a[k] for a in self._plan))
         self._plan = None
 
@@ -383,36 +381,31 @@ class Traffic:
         to the start of each path lane)."""
         s, n = self.n_plan, self.n
         plan = Poses(np.empty((s, n, 3)), np.zeros((s, n, 4)), np.empty((s, n)), np.zeros((s, n)))
-        motion.vehicle_plan(self.vehicles, self.map.polylines, self._t_plan, start, self._hidden_vehicles,
-                            self.config.lane_change_length, plan)
-        if self.np_:
-            place_pedestrians(self.pedestrians, self._t_plan, plan)
-        motion.yaw_quats(plan.yaw, plan.quat)
+        motion.vehicle_plan(self.vehicles, self.pedestrians, self.map.polylines, self._t_plan, start,
+                            self._hidden_vehicles, self.config.lane_change_length, plan)
         return plan
 
     def _poses_now(self) -> Poses:
         """Poses of every slot at the current state (no plan)."""
         now = Poses(self._hidden.copy()[None], np.zeros((1, self.n, 4)), np.zeros((1, self.n)),
                     np.zeros((1, self.n)))
-        self._vehicle_poses(now)
-        if self.np_:
-            place_pedestrians(self.pedestrians, np.zeros(1), now)
-        motion.yaw_quats(now.yaw, now.quat)
+        self._vehicle_poses(now, walkers=True)
         return Poses(*(a[0] for a in now))
 
     def _refresh_vehicle_poses(self) -> None:
         """The vehicles' current poses from the state (after spawns); their speeds as they were."""
         now = Poses(self.now.pos.copy()[None], np.zeros((1, self.n, 4)), self.now.yaw.copy()[None],
                     np.zeros((1, self.n)))
-        self._vehicle_poses(now)
-        motion.yaw_quats(now.yaw, now.quat)
+        self._vehicle_poses(now, walkers=False)
         self.now = Poses(now.pos[0], now.quat[0], now.yaw[0], self.now.speed)
 
-    def _vehicle_poses(self, out: Poses) -> None:
-        """The vehicles' poses (and speeds) at their state now into out (Poses (1, N, ...))."""
+    def _vehicle_poses(self, out: Poses, walkers: bool) -> None:
+        """The slots' poses (and speeds) at their state now into out (Poses (1, N, ...)): the vehicles', the
+        pedestrians' if `walkers`."""
         starts = motion.path_starts(self.vehicles.path, self.map.length)
-        motion.vehicle_plan(self.vehicles, self.map.polylines, np.zeros(1), starts, self._hidden_vehicles,
-                            self.config.lane_change_length, out, distances=False)
+        motion.vehicle_plan(self.vehicles, self.pedestrians, self.map.polylines, np.zeros(1), starts,
+                            self._hidden_vehicles, self.config.lane_change_length, out, distances=False,
+                            walkers=walkers)
 
     # --- queries -----------------------------------------------------------------------------------------
     @property

@@ -15,6 +15,7 @@ from mjdrive.compiled import inline, jit, maximum
 from mjdrive.traffic.geometry import smoothstep
 from mjdrive.traffic.intentions import next_lanes
 from mjdrive.traffic.lanes import find_segment, flat_position
+from mjdrive.traffic.pedestrians import commit_pedestrians, place_pedestrians
 from mjdrive.traffic.state import Poses
 
 STOPPED_SPEED = 1.0  # [m/s] a vehicle slower than this is waiting (urban rules: its patience runs down)
@@ -42,7 +43,7 @@ def path_starts(path, lane_length):
     return before
 
 
-@jit
+@inline
 def plan_distances(v, accel, t_plan):
     """Distance [m] (S, NV) each vehicle moves by each substep time t_plan (S,) [s] at speed v [m/s] and constant
     acceleration [m/s^2], stopping at zero speed."""
@@ -59,7 +60,7 @@ def plan_distances(v, accel, t_plan):
     return ds
 
 
-@jit
+@inline
 def centre_poses(lines, path, s, ds, before):
     """Centre-line x, y [m] and heading [rad] (S, NV) of each vehicle's lane after moving ds (S, NV) [m] from s
     along its path (`before` (NV, PATH) [m]: to the start of each path lane; a dead end's vehicle stays on its last
@@ -109,7 +110,7 @@ def lateral(vehicles, ds: np.ndarray, h: np.ndarray, lane_change_length: float) 
     return vehicles.d_pref[None], h
 
 
-@jit
+@inline
 def place_vehicles(vehicles, x, y, h, d, yaw, t_plan, hidden, out):
     """Write the vehicles' poses into `out` (Poses (S, N, ...), at their slots): the centre line x, y [m] (S, NV)
     shifted by the lateral offset d [m] (S or 1, NV) along the normal (-sin h, cos h) of its heading h [rad] (S, NV),
@@ -143,7 +144,7 @@ def place_vehicles(vehicles, x, y, h, d, yaw, t_plan, hidden, out):
                 out_speed[i, slot] = maximum(v[n] + accel[n] * t, 0.0) * 0.0  # as numpy's x * False
 
 
-@jit
+@inline
 def yaw_quats(yaw, out):
     """Quaternions (w, x, y, z) about z of yaw [rad] (S, N) into out (S, N, 4) (zeros in x and y)."""
     n_s, n = yaw.shape
@@ -158,21 +159,38 @@ def yaw_quats(yaw, out):
             out[i, j, 3] = math.sin(half)
 
 
-def vehicle_plan(vehicles, lines, t_plan: np.ndarray, before: np.ndarray, hidden: np.ndarray,
-                 lane_change_length: float, out: Poses, distances: bool = True) -> None:
-    """The vehicles' poses at the times t_plan (S,) [s] of a plan into `out` (their slots of its pos, yaw and
-    speed): moved along their paths (`before`: `path_starts`) by `plan_distances` (or not at all, without
-    `distances`), at their lateral offsets."""
-    if distances:
-        ds = plan_distances(vehicles.v, vehicles.accel, t_plan)
-    else:
-        ds = np.zeros((1, len(vehicles.v)))
+@jit
+def plan_centres(vehicles, lines, t_plan, before, distances):
+    """The distances ds (S, NV) [m] the vehicles move by the times t_plan (S,) [s] (`plan_distances`; without
+    `distances`, none: ds (1, NV) of zeros) and their centre-line poses there (`centre_poses`; before:
+    `path_starts`)."""
+    ds = plan_distances(vehicles.v, vehicles.accel, t_plan) if distances else np.zeros((1, len(vehicles.v)))
     x, y, h = centre_poses(lines, vehicles.path, vehicles.s, ds, before)
-    d, yaw = lateral(vehicles, ds, h, lane_change_length)
-    place_vehicles(vehicles, x, y, h, d, yaw, t_plan, hidden, out)
+    return ds, x, y, h
 
 
 @jit
+def place(vehicles, pedestrians, x, y, h, d, yaw, t_plan, hidden, out, walkers):
+    """The vehicles' poses from their centre-line poses and lateral offsets (`place_vehicles`), the pedestrians' if
+    `walkers` (`pedestrians.place_pedestrians`), at the times t_plan (S,) [s] into `out` (Poses (S, N, ...)), and
+    every slot's quaternion from its yaw (`yaw_quats`)."""
+    place_vehicles(vehicles, x, y, h, d, yaw, t_plan, hidden, out)
+    if walkers:
+        place_pedestrians(pedestrians, t_plan, out)
+    yaw_quats(out.yaw, out.quat)
+
+
+def vehicle_plan(vehicles, pedestrians, lines, t_plan: np.ndarray, before: np.ndarray, hidden: np.ndarray,
+                 lane_change_length: float, out: Poses, distances: bool = True, walkers: bool = True) -> None:
+    """The vehicles' poses at the times t_plan (S,) [s] of a plan into `out` (their slots of its pos, yaw and
+    speed): moved along their paths (`before`: `path_starts`) by `plan_distances` (or not at all, without
+    `distances`), at their lateral offsets; the pedestrians' with `walkers`; every slot's quaternion."""
+    ds, x, y, h = plan_centres(vehicles, lines, t_plan, before, distances)
+    d, yaw = lateral(vehicles, ds, h, lane_change_length)
+    place(vehicles, pedestrians, x, y, h, d, yaw, t_plan, hidden, out, walkers and len(pedestrians.u) > 0)
+
+
+@inline
 def commit_vehicles(vehicles, t_end, t_end2):
     """The vehicles' state `t_end` [s] into the plan (`t_end2` = t_end**2 as numpy squares it), in place: the
     distance each moved at its constant acceleration, stopping at rest, added to s and lc_dist [m]; its new speed
@@ -190,6 +208,14 @@ def commit_vehicles(vehicles, t_end, t_end2):
         s[r] += ds
         lc_dist[r] += ds
         v[r] = maximum(vr + ar * t_end, 0.0) if active[r] else 0.0
+
+
+@jit
+def commit(vehicles, pedestrians, t_end, t_end2):
+    """The state `t_end` [s] into the plan (`t_end2` = t_end**2 as numpy squares it), in place: the vehicles'
+    (`commit_vehicles`) and the pedestrians' (`pedestrians.commit_pedestrians`); returns who arrived at a kerb."""
+    commit_vehicles(vehicles, t_end, t_end2)
+    return commit_pedestrians(pedestrians, t_end)
 
 
 @inline

@@ -33,16 +33,15 @@ def on_crosswalks(traffic_map, slots: np.ndarray, kerb: float) -> Pedestrians:
                        m.cw_heading[cw], np.zeros(n), np.ones(n), np.zeros(n, dtype=bool), np.zeros(n), np.zeros(n))
 
 
-def arrivals(pedestrians: Pedestrians, t_end: float, wait: tuple[float, float], rng: np.random.Generator) -> None:
-    """The pedestrians' state `t_end` [s] into the plan, in place: walkers move on, those at the far kerb stop,
-    turn and draw a new wait [s] (uniform in `wait`)."""
-    arrived = commit_pedestrians(pedestrians, t_end)
+def new_waits(pedestrians: Pedestrians, arrived: np.ndarray, wait: tuple[float, float],
+              rng: np.random.Generator) -> None:
+    """Pedestrians who `arrived` at the far kerb (`commit_pedestrians`) draw a new wait [s] (uniform in `wait`)."""
     if arrived.any():
         lo, hi = wait
         pedestrians.wait[arrived] = uniform(rng, lo, hi, int(arrived.sum()))
 
 
-@jit
+@inline
 def commit_pedestrians(pedestrians, t_end):
     """The walkers move `t_end` [s] on along their crosswalk (clipped to the kerbs), those who reached the far kerb
     stop and turn; every wait runs down by t_end (in place). Returns who arrived (for their new waits' draws)."""
@@ -120,7 +119,7 @@ def crosswalk_stop(offset_f, front, length, crossings, k, blocked, slow_leader, 
     return stop if (no_room or blocked) and stop > -0.5 else np.inf
 
 
-@jit
+@inline
 def place_pedestrians(pedestrians, times, out):
     """The pedestrians' poses at `times` (S,) [s] ahead into `out` (Poses (S, N, ...), at their slots)."""
     p_ = pedestrians
