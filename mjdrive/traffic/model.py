@@ -411,6 +411,8 @@ class Traffic:
     @property
     def present(self) -> np.ndarray:
         """(N,) slots in the world now (active vehicles and all pedestrians)."""
+        if not self.np_:  # slot i is vehicle row i
+            return self.vehicles.active.copy()
         out = np.ones(self.n, dtype=bool)
         out[self.vehicle_slots] = self.vehicles.active
         return out
@@ -435,6 +437,8 @@ class Traffic:
 
     def intentions(self) -> np.ndarray:
         """(N, 4) intention of every slot by scenario (columns `intentions.SCENARIOS`; -1 for pedestrians)."""
+        if not self.np_:  # slot i is vehicle row i
+            return self.vehicles.intention.copy()
         out = np.full((self.n, len(SCENARIOS)), -1, dtype=np.int64)
         out[self.vehicle_slots] = self.vehicles.intention
         return out
