@@ -111,7 +111,7 @@ def test_roundabout_intention_is_the_exit_relative_to_the_egos(wish):
     traffic, rm = scene(("roundabout",), n=1)
     route = rm.shortest_route(lane(rm, "roundabout/arm2_in_0"), lane(rm, "roundabout/arm0_out_0"))
     traffic.set_ego_route(route)
-    ego_exit = traffic.ego_exit
+    ego_exit = traffic.routes.ego_exit
     assert rm.lanes[ego_exit].name == "roundabout/arm0_exit"
     traffic.place(0, [lane(rm, "roundabout/arm1_in_0")], 40.0, 4.0, intentions={"roundabout": wish})
     driven = lanes_driven(traffic, 0, 40.0)

@@ -3,16 +3,9 @@
 `ApproachTable` turns the roads' `ConflictZones` (one row per pair of lanes that cross or merge, with who
 yields) into approaches: one row per (zone, side), the stretch [s_in, s_out] [m] of the approach lane inside
 the zone and the same stretch on the other lane. At every decision `zone_stops` gives every follower a stop line
-before each zone it must not enter yet:
-
-* a yielding approach waits while a priority agent (a vehicle or the ego) reaches the zone within the
-  critical gap (crossings and merges have their own) or is inside it;
-* on a tie (equal ranks) the agent that reaches the zone later waits;
-* nobody enters a zone while an agent coming from the other lane occupies it;
-* a vehicle that has passed its stop line (committed) goes on.
-and in merges a zipper (`zone_stops` has the details). What every agent is to every approach (inside the zone,
-its time to it, waiting at its line, ...) is computed once per decision (`zone_state`), for the agents on each
-approach's other lane only.
+before each zone it must not enter yet, and in merges a virtual leader (its docstring has the rules). What every
+agent is to every approach (inside the zone, its time to it, waiting at its line, ...) is computed once per decision
+(`zone_state`), for the agents on each approach's other lane only.
 """
 
 from __future__ import annotations
@@ -116,34 +109,6 @@ def _stop_line(lane, other, s_in: float) -> float:
     return float(front[clear[0]]) if len(clear) else float(front[-1])
 
 
-class ZoneState(NamedTuple):
-    """Every agent (A,) and approach (R,) at a decision, for the agents on the approach's other lane (on_lane[r,
-    :n_on[r]]; the other entries are never read): inside the zone (or committed to it), its time to the zone [s],
-    held before its give-way line, able to stop there for a vehicle past its patience, claiming the zone itself,
-    physically in the zone, its time to its give-way line [s], waiting before the zone, its distance to the merge
-    point [m] and whether that is near; per agent (A,): how long it has waited [s], whether it opens gaps
-    (courteous), the headway [m] it needs behind a merging vehicle; the vehicles changing lane (their rows
-    changing[:n_changing])."""
-
-    inside: np.ndarray
-    ttz: np.ndarray
-    held: np.ndarray
-    can_stop: np.ndarray
-    claiming: np.ndarray
-    in_zone: np.ndarray
-    t_line: np.ndarray
-    waiting: np.ndarray
-    d_merge: np.ndarray
-    near: np.ndarray
-    on_lane: np.ndarray  # (R, A) int
-    n_on: np.ndarray  # (R,) int
-    waited: np.ndarray
-    courteous: np.ndarray
-    needed: np.ndarray
-    changing: np.ndarray
-    n_changing: int
-
-
 @inline
 def can_stop(v: float, to_line: float) -> bool:
     """Whether a vehicle at speed v [m/s], to_line [m] before its give-way line, can stop there braking at most
@@ -154,8 +119,14 @@ def can_stop(v: float, to_line: float) -> bool:
 
 @inline
 def zone_state(agents, vehicles, approaches, c):
-    """The decision's `ZoneState` of every agent (`Agents`: the vehicles, then the ego, which never waits, is never
-    courteous and is never counted on to stop for a claim) at every approach."""
+    """Every agent (A,) (`Agents`: the vehicles, then the ego, which never waits, is never courteous and is never
+    counted on to stop for a claim) at every approach (R,), for the agents on the approach's other lane (on_lane[r,
+    :n_on[r]]; the other entries are never read): inside the zone (or committed to it), its time to the zone [s],
+    held before its give-way line, able to stop there for a vehicle past its patience, claiming the zone itself,
+    physically in the zone, its time to its give-way line [s], waiting before the zone, its distance to the merge
+    point [m] and whether that is near (A, R); on_lane (R, A), n_on (R,); per agent (A,): how long it has waited
+    [s], whether it opens gaps (courteous), the headway [m] it needs behind a merging vehicle; the vehicles changing
+    lane (rows)."""
     ap = approaches
     s_a, v_a, len_a, offset_a = agents.s, agents.v, agents.length, agents.offset
     n_a, n_r, nv = len(s_a), len(ap.lane), len(vehicles.v)
@@ -233,8 +204,8 @@ def zone_state(agents, vehicles, approaches, c):
         # one standing still only needs the follower not to touch it (the follower moves away from it, and it
         # may be standing for the follower: waiting for it would never end)
         needed[a] = c.min_gap + v_a[a] * c.critical_gap_merge if v_a[a] >= HELD_SPEED else STANDING_ROOM
-    return ZoneState(inside, ttz, held, stoppable, claiming, in_zone, t_line, waiting, d_merge, near, on_lane, n_on,
-                     waited, courteous, needed, changing, n_changing)
+    return (inside, ttz, held, stoppable, claiming, in_zone, t_line, waiting, d_merge, near, on_lane, n_on, waited,
+            courteous, needed, changing[:n_changing])
 
 
 @inline
@@ -250,11 +221,8 @@ def zone_stops(followers, agents, vehicles, approaches, slot_pos, c):
     of the other lane nearer the merge point are virtual leaders of the yielding side, and of the priority side once
     committed (or, for a courteous vehicle, within `courtesy_range`); a yielding vehicle waits at its give-way line
     while a priority agent behind it in that order would come closer than its headway."""
-    zs = zone_state(agents, vehicles, approaches, c)
-    inside, ttz, held, stoppable_a, claiming, in_zone = zs.inside, zs.ttz, zs.held, zs.can_stop, zs.claiming, \
-        zs.in_zone  # (read in the loops below as locals: no reference counting there)
-    t_line, waiting, d_merge, near, on_lane, n_on = zs.t_line, zs.waiting, zs.d_merge, zs.near, zs.on_lane, zs.n_on
-    waited_a, courteous_a, needed, changing = zs.waited, zs.courteous, zs.needed, zs.changing[:zs.n_changing]
+    (inside, ttz, held, stoppable_a, claiming, in_zone, t_line, waiting, d_merge, near, on_lane, n_on, waited_a,
+     courteous_a, needed, changing) = zone_state(agents, vehicles, approaches, c)
     ap = approaches
     ap_lane, ap_s_in, ap_s_out, ap_stop, ap_point = ap.lane, ap.s_in, ap.s_out, ap.stop, ap.point
     ap_timed, ap_yields, ap_tie, ap_merge, ap_courtesy = ap.timed, ap.yields, ap.tie, ap.merge, ap.courtesy

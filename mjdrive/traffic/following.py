@@ -18,7 +18,7 @@ from mjdrive.traffic.conflicts import zone_stops
 from mjdrive.traffic.lanes import curve_speed
 from mjdrive.traffic.merges import merge_state, merge_stops
 from mjdrive.traffic.pedestrians import BAND_MARGIN, SLOW_LEADER, crosswalk_stop, occupied_crossings
-from mjdrive.traffic.state import Agents, Followers, Obstacles
+from mjdrive.traffic.state import Agents, Followers
 
 INF = np.inf
 LINE_DECEL = 1.5  # [m/s^2] followers approach yield and give-way lines slowly enough to stop there at this braking
@@ -52,8 +52,10 @@ def gap_table(followers, agents, vehicles, pedestrians, now, half_size, ego, tab
 
 @inline
 def obstacles_now(vehicles, pedestrian_slots, now, half_size, ego):
-    """`Obstacles`: the active vehicles, the pedestrians (slots), then the ego if `ego` (x, y [m], yaw [rad], speed
-    [m/s], half length and width [m]) is not empty, at the slots' poses `now` (half sizes (N, 3) [m])."""
+    """What the corridor check sees (O,): the active vehicles, the pedestrians (slots), then the ego if `ego` (x, y [m],
+    yaw [rad], speed [m/s], half length and width [m]) is not empty, at the slots' poses `now` (half sizes (N, 3)
+    [m]): centres (O, 2) [m], yaws [rad], speeds [m/s], half lengths and widths [m], and the follower row each is
+    (vehicle row, NV for the ego, -1 for pedestrians)."""
     active, vehicle_slots = vehicles.active, vehicles.slot
     n_active = 0
     for r in range(len(active)):
@@ -76,7 +78,7 @@ def obstacles_now(vehicles, pedestrian_slots, now, half_size, ego):
     if len(ego):
         xy[k, 0], xy[k, 1], yaw[k], speed[k], hl[k], hw[k] = ego[0], ego[1], ego[2], ego[3], ego[4], ego[5]
         row[k] = len(active)
-    return Obstacles(xy, yaw, speed, hl, hw, row)
+    return xy, yaw, speed, hl, hw, row
 
 
 @inline
@@ -105,8 +107,7 @@ def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, k
     # the arrays the loops read, as locals (reading a NamedTuple's array in a loop costs reference counting there)
     path, offset, s, v, length, width, f_xy = f_.path, f_.offset, f_.s, f_.v, f_.length, f_.width, f_.xy
     lane_a, s_a, v_a, len_a = agents.path[:, 0], agents.s, agents.v, agents.length
-    o_xy, o_speed, o_hl, o_hw, o_row = obstacles.xy, obstacles.speed, obstacles.half_length, obstacles.half_width, \
-        obstacles.row
+    o_xy, o_yaw, o_speed, o_hl, o_hw, o_row = obstacles
     n_f, n_a, n_o, n_k = len(s), len(s_a), len(o_row), len(crossings.lane)
     lead_gap = np.full(n_f, INF)
     interaction = np.zeros(n_f)
@@ -118,7 +119,7 @@ def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, k
         cos_f[f], sin_f[f] = math.cos(f_.yaw[f]), math.sin(f_.yaw[f])
     cos_o, sin_o = np.empty(n_o), np.empty(n_o)  # the obstacles'
     for o in range(n_o):
-        cos_o[o], sin_o[o] = math.cos(obstacles.yaw[o]), math.sin(obstacles.yaw[o])
+        cos_o[o], sin_o[o] = math.cos(o_yaw[o]), math.sin(o_yaw[o])
     blocked = occupied_crossings(pedestrians, crossings, c.crosswalk_margin + BAND_MARGIN)
     conflict, committed = merge_state(agents, vehicles, merges, slot_pos, accept_gap, c)
     z_start, z_line, z_gap, z_speed, to_give_way = zone_stops(f_, agents, vehicles, tables.approaches, slot_pos, c)

@@ -131,9 +131,7 @@ class Traffic:
         self._t_plan = cfg.substep * np.arange(1, self.n_plan + 1)  # [s]
         self._hidden = np.column_stack([np.zeros(self.n), np.zeros(self.n), HIDDEN_Z - 5.0 * np.arange(self.n)])
         self._hidden_vehicles = self._hidden[self.vehicle_slots]  # [m] (NV, 3)
-        self.mocap_ids: np.ndarray | None = None
-        self._mocap: slice | np.ndarray | None = None  # where the slots are in data.mocap_*
-        self._views = None  # (data, its mocap_pos and mocap_quat rows (views), their index) of the last `write`
+        self.mocap_ids: np.ndarray | None = None  # the slots' rows in data.mocap_*
         self.cpu_time = 0.0  # [s] wall time spent in `advance` (for benchmarks)
         self.stats = {"spawned": 0, "despawned": 0, "lane_changes": 0}
         self.generation = np.zeros(self.n, dtype=np.int64)  # per slot: +1 each time a road user (re)enters
@@ -142,13 +140,8 @@ class Traffic:
         self.intent_rng = np.random.default_rng(1)
         self._reset_state()
 
-    @property
-    def ego_exit(self) -> int:
-        """The ego's ring exit lane (roundabout intentions; -1: none), see `set_ego_route`."""
-        return self.routes.ego_exit
-
     def set_ego_route(self, route: Sequence[int] | None) -> None:
-        """The ego's route (lane ids): roundabout intentions are relative to its ring exit."""
+        """The ego's route (lane ids): roundabout intentions are relative to its ring exit (`routes.ego_exit`)."""
         ego_exit = -1
         if self.urban and route is not None:
             exits = [lane for lane in route if self.roles.ring_exit[lane]]
@@ -165,9 +158,6 @@ class Traffic:
                 raise ValueError(f"body {prefix}{i} is not a mocap body")
             ids.append(int(model.body_mocapid[body.id]))
         self.mocap_ids = np.array(ids, dtype=np.int64)
-        contiguous = not ids or np.array_equal(self.mocap_ids, np.arange(ids[0], ids[0] + self.n))
-        self._mocap = slice(ids[0] if ids else 0, (ids[0] if ids else 0) + self.n) if contiguous else self.mocap_ids
-        self._views = None
 
     def _reset_state(self) -> None:
         self.vehicles = state.new_vehicles(self.vehicles.slot, self.vehicles.length)
@@ -313,16 +303,10 @@ class Traffic:
 
     def write(self, data: mujoco.MjData) -> None:
         """Write the current poses into data.mocap_pos / mocap_quat."""
-        if self._mocap is None:
+        if self.mocap_ids is None:
             raise RuntimeError("call Traffic.bind(model) before writing poses")
-        views = self._views
-        if views is None or views[0] is not data:  # views into data's arrays: kept (the slots' rows, when contiguous)
-            if isinstance(self._mocap, slice):
-                views = self._views = (data, data.mocap_pos[self._mocap], data.mocap_quat[self._mocap], Ellipsis)
-            else:
-                views = self._views = (data, data.mocap_pos, data.mocap_quat, self._mocap)
-        views[1][views[3]] = self.now.pos
-        views[2][views[3]] = self.now.quat
+        data.mocap_pos[self.mocap_ids] = self.now.pos
+        data.mocap_quat[self.mocap_ids] = self.now.quat
 
     def _commit(self, k: int = -1) -> None:
         """Make the plan's substep k (default: its end) the new state."""
@@ -342,7 +326,7 @@ class Traffic:
                                      self.intent_rng)
         if spawned:
             self.stats["spawned"] += spawned
-            self._refresh_vehicle_poses()
+            self.now = self._poses_now(vehicles_only=True)
         agents = self.agents()
         if lane_changes(v, self.vehicle_kinds, agents, self.map.lane_tables, self.routes, cfg, self.constants, self.rng,
                         self.time, self.now.pos, self.ego, self.approaches.point):
@@ -385,27 +369,16 @@ class Traffic:
                             self._hidden_vehicles, self.config.lane_change_length, plan)
         return plan
 
-    def _poses_now(self) -> Poses:
-        """Poses of every slot at the current state (no plan)."""
-        now = Poses(self._hidden.copy()[None], np.zeros((1, self.n, 4)), np.zeros((1, self.n)),
-                    np.zeros((1, self.n)))
-        self._vehicle_poses(now, walkers=True)
-        return Poses(*(a[0] for a in now))
-
-    def _refresh_vehicle_poses(self) -> None:
-        """The vehicles' current poses from the state (after spawns); their speeds as they were."""
-        now = Poses(self.now.pos.copy()[None], np.zeros((1, self.n, 4)), self.now.yaw.copy()[None],
-                    np.zeros((1, self.n)))
-        self._vehicle_poses(now, walkers=False)
-        self.now = Poses(now.pos[0], now.quat[0], now.yaw[0], self.now.speed)
-
-    def _vehicle_poses(self, out: Poses, walkers: bool) -> None:
-        """The slots' poses (and speeds) at their state now into out (Poses (1, N, ...)): the vehicles', the
-        pedestrians' if `walkers`."""
-        starts = motion.path_starts(self.vehicles.path, self.map.length)
-        motion.vehicle_plan(self.vehicles, self.pedestrians, self.map.polylines, np.zeros(1), starts,
-                            self._hidden_vehicles, self.config.lane_change_length, out, distances=False,
-                            walkers=walkers)
+    def _poses_now(self, vehicles_only: bool = False) -> Poses:
+        """Poses of every slot at the current state (no plan); `vehicles_only` (after spawns): the pedestrians' poses
+        and every speed as they were."""
+        pos, yaw = (self.now.pos.copy(), self.now.yaw.copy()) if vehicles_only else (self._hidden.copy(),
+                                                                                       np.zeros(self.n))
+        now = Poses(pos[None], np.zeros((1, self.n, 4)), yaw[None], np.zeros((1, self.n)))
+        motion.vehicle_plan(self.vehicles, self.pedestrians, self.map.polylines, np.zeros(1),
+                            motion.path_starts(self.vehicles.path, self.map.length), self._hidden_vehicles,
+                            self.config.lane_change_length, now, distances=False, walkers=not vehicles_only)
+        return Poses(now.pos[0], now.quat[0], now.yaw[0], self.now.speed if vehicles_only else now.speed[0])
 
     # --- queries -----------------------------------------------------------------------------------------
     @property

@@ -134,17 +134,6 @@ class Followers(NamedTuple):
     courteous: np.ndarray  # bool: opens gaps at merges (merge intention YIELD; never the ego)
 
 
-class Obstacles(NamedTuple):
-    """What the corridor check sees (O,): active vehicles, pedestrians, then the ego."""
-
-    xy: np.ndarray  # (O, 2) [m]
-    yaw: np.ndarray  # [rad]
-    speed: np.ndarray  # [m/s]
-    half_length: np.ndarray  # [m]
-    half_width: np.ndarray  # [m]
-    row: np.ndarray  # int: the follower row it is (vehicle row, NV for the ego, -1 for pedestrians)
-
-
 NO_PATH = np.zeros(0, dtype=np.int64)
 
 
