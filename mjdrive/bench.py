@@ -341,7 +341,7 @@ def run_roundabout_benchmarks(levels=ROUNDABOUT_LEVELS, seconds: float = 3.0, im
         "raw: `mj_step` of the same model from the same state (traffic boxes still). env/raw: simulated "
         "seconds per wall second of the env (features observation) over raw physics. traffic share: wall "
         "time inside `Traffic.advance` over the env's wall time: its decisions and the substeps handed back to it "
-        "(the other substeps' pose writes run inside the compiled physics chunks, `tasks.chunks`). Raw, env and "
+        "(the other substeps' pose writes run inside the substep loop's kernel, `tasks.stepping`). Raw, env and "
         f"env at {COMPARE_DT * 1e3:g} ms are measured in {ROUNDS} interleaved rounds; each figure is the best round "
         "(robust to other processes on the machine).",
     ]

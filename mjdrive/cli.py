@@ -303,7 +303,7 @@ def cmd_drive(args) -> int:
 
 
 def cmd_replay(args) -> int:
-    from mjdrive.record.replay import replay
+    from mjdrive.envs.replay import replay
 
     result = replay(args.file, video=args.video, progress=True)
     print(result.report())

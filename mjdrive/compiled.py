@@ -1,14 +1,16 @@
-"""Compiled kernels with numba (the `fast` extra): where numba keeps compiled code, whether kernels are on, and
-the decorators that compile them.
+"""Compiled code with numba: the decorators that compile mjdrive's kernels, where numba keeps the compiled code,
+and the debug switch that runs the same functions interpreted.
+
+A kernel is the one implementation of its rule (there is no numpy twin). `jit` compiles it (cached on disk);
+the compiled function keeps the Python source as `.py_func`. With MJDRIVE_INTERPRETED=1 in the environment
+(read once, at import) `jit` and `inline` return the functions undecorated: every kernel then runs as plain
+Python, with the same numbers (`tests/test_trajectory_hash.py` checks a short run's hash), slowly, and a
+debugger steps through it line by line.
 
 numba reads NUMBA_CACHE_DIR once, when it is imported: it is set here (`numba_cache_dir`) before numba is
 imported, by this module or by the worker processes' preload (`mjdrive.envs.preload`), so that every process
 looks for the compiled kernels in the same place. Without it numba would look beside the sources (unwritable in
-a site install) and compile them again (~20 s) in every process.
-
-A kernel repeats numpy code operation for operation and is checked against it bit for bit; without numba
-(`KERNELS` False: not installed, or MJDRIVE_NO_KERNELS=1) the numpy code runs, and the decorators leave the
-kernels as plain Python (which the tests still compare with the numpy code).
+a site install) and compile them again in every process.
 """
 
 from __future__ import annotations
@@ -26,33 +28,53 @@ def numba_cache_dir() -> Path:
 
 
 numba_cache_dir()  # before numba's import
-try:
-    from numba import njit
-except ImportError:  # the numpy code runs instead
-    KERNELS = False
-else:
-    KERNELS = os.environ.get("MJDRIVE_NO_KERNELS", "") in ("", "0")
+from numba import njit  # noqa: E402  (after its cache directory is set)
+
+INTERPRETED = os.environ.get("MJDRIVE_INTERPRETED", "") not in ("", "0")  # the debug switch: kernels as Python
+
+
+# numpy's error model: a float division by zero gives inf or nan (as numpy's arithmetic does) instead of raising;
+# without the raise paths numba drops the reference counting of arrays read from NamedTuples inside loops (with them,
+# a zone's rules took three times as long). A division by zero is a bug in any kernel here either way.
+OPTIONS = {"cache": True, "nogil": True, "error_model": "numpy"}
 
 
 def jit(fn: Callable) -> Callable:
-    """Compile `fn` (cached on disk) when kernels are on; else leave it as Python."""
-    return njit(cache=True, nogil=True)(fn) if KERNELS else fn
+    """Compile `fn` (cached on disk; releases the GIL); interpreted: `fn` itself."""
+    return fn if INTERPRETED else njit(**OPTIONS)(fn)
 
 
 def inline(fn: Callable) -> Callable:
-    """A helper of kernels, inlined into them (no call, no reference counting of its array arguments)."""
-    return njit(inline="always", cache=True, nogil=True)(fn) if KERNELS else fn
+    """A helper of kernels, inlined into them (no call, no reference counting of its array arguments); interpreted:
+    `fn` itself."""
+    return fn if INTERPRETED else njit(inline="always", **OPTIONS)(fn)
+
+
+@inline
+def maximum(a: float, b: float) -> float:
+    """np.maximum of two floats (NaN wins), for kernels."""
+    if a != a or a >= b:
+        return a
+    return b
+
+
+@inline
+def minimum(a: float, b: float) -> float:
+    """np.minimum of two floats (NaN wins), for kernels."""
+    if a != a or a <= b:
+        return a
+    return b
 
 
 def announce_compilation() -> None:
     """Say on stderr, once per process, that the kernels are being compiled when the cache holds none yet (the
     first env on a machine would otherwise wait some seconds in silence)."""
     global _announced
-    if _announced or not KERNELS:
+    if _announced or INTERPRETED:
         return
     _announced = True
     if not any(numba_cache_dir().rglob("*.nbi")):
-        print(f"mjdrive: compiling the kernels once for this machine (about 20 s; cache {numba_cache_dir()})",
+        print(f"mjdrive: compiling the kernels once for this machine (about 30 s; cache {numba_cache_dir()})",
               file=sys.stderr, flush=True)
 
 

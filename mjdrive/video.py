@@ -40,7 +40,7 @@ LEGEND_RGBA: dict[str, tuple[float, float, float, float]] = {  # road users in v
 @dataclass
 class Overlay:
     """What one frame shows: the step it follows, its reward, the return so far [task units], the task's
-    `info`, and the outcome on the last frame (`mjdrive.record.summary.end_reason`)."""
+    `info`, and the outcome on the last frame (e.g. `mjdrive.record.summary.end_reason`)."""
 
     step: int = 0
     reward: float | None = None
@@ -103,10 +103,8 @@ class EpisodeVideo:
 
     def scenario(self, info: dict[str, Any]) -> str:
         """The task and its active scenario: the route or exit being driven, a scenario the task names."""
-        from mjdrive.record.summary import relative_exit, roundabout_arms
-
         text = f"{self.env.domain}/{self.env.task_name}"
-        exit_number = relative_exit(info, roundabout_arms(self.env.domain, self.env.task_name, self.env.task_kwargs))
+        exit_number = info.get("exit_number")  # the roundabout's exit, counted from the entry
         if exit_number is not None:
             text += f", exit {exit_number}"
             if exit_number <= len(ORDINALS):

@@ -84,7 +84,7 @@ def test_observation_layout_scales_features_and_transposes_images():
 
 @pytest.mark.parametrize("backend", ["threads", "rollout"])
 def test_roundabout_traffic_moves_between_substeps_as_in_the_single_env(backend):
-    """The roundabout moves its traffic in Physics.substep_callback: the batched physics call must too."""
+    """The roundabout moves its traffic between physics chunks: the batched physics must too."""
     actions = _actions(25, seed=1)
     env = make_env("roundabout", "d120", observation="features", off_route=None)  # random actions leave the route
     env.reset(seed=4)
@@ -210,25 +210,18 @@ def test_trajectories_equal_independent_single_envs_bit_for_bit(domain, task, kw
 
 def test_substep_callbacks_get_each_chunks_duration():
     """`Physics.set_substeps` calls back after every chunk of physics steps (the period's nearest whole number)
-    with the chunk's duration, a shorter last chunk included; a callback set by hand gets the same durations."""
+    with the chunk's duration, a shorter last chunk included (a callback without the ego's sensor or traffic: every
+    chunk goes to it)."""
     from mjdrive import suite
 
     env = suite.load("waypoints", "straight", {"random": 0})
     env.reset()
     physics = env.physics
     dt = physics.timestep()  # [s]
-    for by_hand in (False, True):
-        calls = []
-        start = physics.data.time
-
-        def note(p, duration, calls=calls):
-            calls.append((duration, p.data.time))
-
-        if by_hand:
-            physics.substep_dt, physics.substep_interval, physics.substep_callback = 0.0, 4, note
-        else:
-            physics.set_substeps(note, 4.2 * dt)
-        assert physics.substep_interval == 4
-        physics.advance(4 * 5 + 3)
-        assert [duration for duration, _ in calls] == [4 * dt] * 5 + [3 * dt]
-        np.testing.assert_allclose([t - start for _, t in calls], dt * np.array([4, 8, 12, 16, 20, 23]))
+    calls = []
+    start = physics.data.time
+    physics.set_substeps(lambda p, duration: calls.append((duration, p.data.time)), 4.2 * dt)
+    assert physics.substeps.chunk == 4
+    physics.advance(4 * 5 + 3)
+    assert [duration for duration, _ in calls] == [4 * dt] * 5 + [3 * dt]
+    np.testing.assert_allclose([t - start for _, t in calls], dt * np.array([4, 8, 12, 16, 20, 23]))

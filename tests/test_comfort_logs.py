@@ -12,10 +12,10 @@ import pytest
 
 from mjdrive.comfort import ComfortMeter, ComfortMetrics
 from mjdrive.envs import make_env
+from mjdrive.envs.replay import replay
 from mjdrive.policies import make_policy
 from mjdrive.record import LAYOUT, RecordEpisodes, proto
 from mjdrive.record.reader import logs_document, logs_rows, logs_table, read_episode
-from mjdrive.record.replay import replay
 from mjdrive.record.summary import COMFORT_FIELDS, ROW_FIELDS, episode_row
 from mjdrive.traffic import intentions
 

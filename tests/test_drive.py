@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mjdrive.envs.replay import replay
 from mjdrive.record.reader import read_episode
-from mjdrive.record.replay import replay
 
 if shutil.which("Xvfb") is None or shutil.which("xdotool") is None:
     pytest.skip("needs Xvfb and xdotool (Debian: apt-get install xvfb xdotool; `make test` installs them)",

@@ -10,10 +10,10 @@ import pytest
 
 from mjdrive import ConfigError, suite
 from mjdrive.envs import make_env
+from mjdrive.envs.replay import replay, replay_task_kwargs
 from mjdrive.record import EnvSpec, RecordedEnvironment, RecordEpisodes
 from mjdrive.record.reader import read_episode
 from mjdrive.record.recorder import SEGMENT_SCALE, decode_rng_state
-from mjdrive.record.replay import replay, replay_task_kwargs
 from mjdrive.sensors import SEGMENT_CLASSES, DepthSegmentationCamera, geom_classes
 
 AHEAD = 12.0  # [m] from the ego's chassis origin to the centre of the car placed in front of it

@@ -6,7 +6,7 @@ Layers, top to bottom (a module may import from its own layer or a lower one, ne
 | --- | --- | --- |
 | cli | `mjdrive` (its `__init__`), `cli`, `drive`, `bench`, `bench_sensors`, `bench_operative` | commands, facade |
 | agents | `agents` (the `agents/` folder) | learners, evaluation, ensembles |
-| envs | `envs`, `policies`, `record.replay` | gymnasium envs, scripted policies, replaying a log in an env |
+| envs | `envs`, `policies` | gymnasium envs, scripted policies, replaying a log in an env |
 | record | `record`, `video` | MCAP episode logs, summaries, videos of dm-control episodes |
 | tasks | `tasks`, `suite` | dm-control tasks and their registry |
 | parts | `traffic`, `sensors`, `vehicle`, `control`, `world` | what a task is built from |
@@ -33,7 +33,7 @@ LAYERS = {  # top to bottom
     "cli": ("mjdrive", "mjdrive.cli", "mjdrive.drive", "mjdrive.bench", "mjdrive.bench_sensors",
             "mjdrive.bench_operative"),
     "agents": ("mjdrive.agents",),
-    "envs": ("mjdrive.envs", "mjdrive.policies", "mjdrive.record.replay"),
+    "envs": ("mjdrive.envs", "mjdrive.policies"),
     "record": ("mjdrive.record", "mjdrive.video"),
     "tasks": ("mjdrive.tasks", "mjdrive.suite"),
     "parts": ("mjdrive.traffic", "mjdrive.sensors", "mjdrive.vehicle", "mjdrive.control", "mjdrive.world"),

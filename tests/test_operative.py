@@ -222,7 +222,7 @@ def test_batched_decision_env_matches_the_single_env_and_logs_replay(tmp_path):
     from mjdrive.envs import make_env
     from mjdrive.envs.batched import BatchedEnv
     from mjdrive.record.reader import read_episode
-    from mjdrive.record.replay import replay
+    from mjdrive.envs.replay import replay
 
     kwargs = {"decisions": True, "road_users": {"car": 4}, "time_limit": 20.0}
     decisions = np.random.default_rng(3).integers(0, 2, 30)

@@ -16,11 +16,11 @@ from mcap.reader import make_reader
 
 from mjdrive import cli
 from mjdrive.envs import make_env
+from mjdrive.envs.replay import LEGACY_PHYSICS_DT, replay, replay_task_kwargs
 from mjdrive.policies import make_policy
 from mjdrive.record import EnvSpec, EpisodeRecorder, RecordEpisodes, RecordOptions, load, proto
 from mjdrive.record.reader import logs_table, read_episode
 from mjdrive.record.recorder import episode_filename
-from mjdrive.record.replay import LEGACY_PHYSICS_DT, replay, replay_task_kwargs
 from mjdrive.tasks.base import RoadUsers
 from mjdrive.world import PHYSICS_TIMESTEP
 
@@ -429,7 +429,7 @@ def test_layout_file_refers_to_logged_topics():
 
 def test_batched_env_records_each_copy_apart_and_every_file_replays(tmp_path):
     from mjdrive.envs.batched import BatchedEnv
-    from mjdrive.record.replay import replay
+    from mjdrive.envs.replay import replay
 
     env = BatchedEnv("waypoints", "straight", num_envs=2, record_dir=tmp_path, time_limit=1.0)
     env.reset(seed=5)

@@ -392,35 +392,37 @@ def test_footprint_is_box_points_of_one_box():
         assert np.array_equal(with_centre[1:], expected)
 
 
-def test_route_frame_kernel_gives_the_numpy_numbers(monkeypatch):
-    """RouteFrame's compiled projection (plain Python without numba) equals the numpy code bit for bit, search
-    window included, for points near and off a roundabout route; so does its one-point form `point`."""
-    import mjdrive.roads.route_frame as route_frame
+def test_route_frame_projects_points_onto_the_nearest_segment_of_the_route():
+    """RouteFrame's (s, d) of points near a roundabout route, searching every segment: the foot point at s is the
+    polyline's nearest point, d the offset from its segment's line (the distance, but at a vertex's outer side),
+    d > 0 to its left; `point` gives one point's numbers as floats from the same window."""
     from mjdrive.roads.junctions import roundabout_routes
     from mjdrive.roads.lane import Lane
+    from mjdrive.roads.route_frame import RouteFrame
+    from mjdrive.traffic.lanes import polyline_distance
 
     rm = roads.roundabout()
     rng = np.random.default_rng(1)
     for route in list(roundabout_routes(rm).values())[:4]:
         lane = Lane(rm.route_polyline(route), name="route")
-        numpy_frame, kernel_frame = route_frame.RouteFrame(lane), route_frame.RouteFrame(lane)
-        for step in range(200):
+        frame, single = RouteFrame(lane), RouteFrame(lane)
+        for _ in range(50):
             centre = np.array(lane.position(rng.uniform(0, lane.length))) + rng.normal(0, 2.0, 2)
             points = np.vstack([centre[None], centre + rng.normal(0, 2.0, (4, 2))])
-            monkeypatch.setattr(route_frame, "KERNELS", False)
-            expected = numpy_frame(points, full=step % 40 == 0)
-            monkeypatch.setattr(route_frame, "KERNELS", True)
-            got = kernel_frame(points, full=step % 40 == 0)
-            assert np.array_equal(expected[0], got[0]) and np.array_equal(expected[1], got[1])
-            assert numpy_frame.segment == kernel_frame.segment
-            # one point, as floats (the urban task's per-step call), from the same window
-            x, y = float(points[1, 0]), float(points[1, 1])
-            monkeypatch.setattr(route_frame, "KERNELS", False)
-            expected_point = numpy_frame.point(x, y)
-            monkeypatch.setattr(route_frame, "KERNELS", True)
-            got_point = kernel_frame.point(x, y)
-            assert got_point == expected_point and numpy_frame.segment == kernel_frame.segment
-            assert all(type(v) is float for v in (*expected_point, *got_point))
+            s, d = frame(points, full=True)
+            distance = polyline_distance(points, lane.centre)
+            foot = lane.position(s)  # the nearest point of the polyline
+            np.testing.assert_allclose(np.hypot(*(points - foot).T), distance, atol=1e-6)
+            # d: the offset from the nearest segment's line (at a vertex's outer side, less than the distance)
+            assert np.all(np.abs(d) <= distance + 1e-9) and np.mean(np.abs(np.abs(d) - distance) < 1e-9) > 0.5
+            ahead = lane.position(np.minimum(s + 0.01, lane.length)) - lane.position(np.maximum(s - 0.01, 0.0))
+            left = ahead[:, 0] * (points - foot)[:, 1] - ahead[:, 1] * (points - foot)[:, 0]
+            assert np.all((left > 0) == (d > 0) | (np.abs(d) < 1e-6))
+            single.segment = frame.segment
+            x, y = float(points[0, 0]), float(points[0, 1])
+            one = single.point(x, y)
+            assert one == (float(frame(points[:1])[0][0]), float(frame(points[:1])[1][0]))
+            assert all(type(v) is float for v in one)
 
 
 def test_lane_one_point_projection_point_and_curvature_sampling_give_the_numpy_numbers():

@@ -28,7 +28,7 @@ def _run(traffic, seconds, ego=None, each=None):
 
 def _front(traffic, row):
     """Front-bumper arc length [m] of vehicle `row` along its current lane."""
-    return traffic.s[row] + traffic.length[row] / 2
+    return traffic.vehicles.s[row] + traffic.vehicles.length[row] / 2
 
 
 def test_idm_keeps_the_safe_gap_behind_a_braking_leader():
@@ -42,11 +42,36 @@ def test_idm_keeps_the_safe_gap_behind_a_braking_leader():
     _run(traffic, 20.0)  # the follower catches up and settles into car following
     gap = traffic.poses()[1, 0] - traffic.poses()[0, 0] - 4.5
     assert 2.5 + 6.0 < gap < 12.0, gap  # about s0 + v T (IDM equilibrium)
-    traffic.v0[1] = 0.0  # the leader brakes as hard as it can (8 m/s^2) to a stop
+    traffic.vehicles.v0[1] = 0.0  # the leader brakes as hard as it can (8 m/s^2) to a stop
     gaps = []
     _run(traffic, 10.0, each=lambda t: gaps.append(t.poses()[1, 0] - t.poses()[0, 0] - 4.5))
-    assert traffic.v[1] == 0.0 and traffic.v[0] < 0.3  # both (nearly) stopped
+    assert traffic.vehicles.v[1] == 0.0 and traffic.vehicles.v[0] < 0.3  # both (nearly) stopped
     assert min(gaps) >= 2.5, min(gaps)
+
+
+def test_leader_query_finds_the_nearest_vehicle_ahead_along_a_lane_path():
+    """`Traffic.leader(path, s)`: the distance from the point to the nearest vehicle's rear bumper and its speed,
+    across lane ends along the path; nobody ahead: (inf, 0)."""
+    rm = roads.straight(length=400.0, two_way=False)
+    lane = rm.lane_id("fwd_0")
+    traffic = Traffic(rm, ["car", "car", "car"], NO_RESPAWN)
+    traffic.reset(np.random.default_rng(0))
+    traffic.remove_all()
+    traffic.place(0, [lane], s=50.0, speed=5.0)
+    traffic.place(1, [lane], s=120.0, speed=7.0)
+    half = traffic.vehicles.length[0] / 2  # [m] a car's half length
+    assert traffic.leader([lane], 10.0) == (50.0 - half - 10.0, 5.0)
+    assert traffic.leader([lane], 60.0) == (120.0 - half - 60.0, 7.0)  # the one behind the point does not count
+    assert traffic.leader([lane], 200.0) == (np.inf, 0.0)
+    chain = roads.concatenated(order=("crossroad",)).road_map
+    first = next(i for i, lane in enumerate(chain.lanes) if chain.successors[i] and not lane.in_junction)
+    after = chain.successors[first][0]
+    traffic = Traffic(chain, ["car"], NO_RESPAWN)
+    traffic.reset(np.random.default_rng(0))
+    traffic.remove_all()
+    traffic.place(0, [after], s=3.0, speed=2.0)
+    gap, speed = traffic.leader([first, after], chain.lanes[first].length - 4.0)
+    assert gap == pytest.approx(4.0 + 3.0 - traffic.vehicles.length[0] / 2) and speed == 2.0
 
 
 def test_no_overlaps_over_a_long_run_at_the_densest_level(roundabout_map):
@@ -69,7 +94,7 @@ def test_no_overlaps_over_a_long_run_at_the_densest_level(roundabout_map):
     _run(traffic, 400.0, ego=lambda: ego, each=check)
     assert max(worst) == 0
     assert traffic.stats["spawned"] > 50 and traffic.stats["lane_changes"] >= 1  # traffic flowed
-    assert traffic.ped_walking.any() or (traffic.ped_wait < 0).any()
+    assert traffic.pedestrians.walking.any() or (traffic.pedestrians.wait < 0).any()
 
 
 def _roundabout_traffic(rm, kinds, seed=0):
@@ -88,14 +113,15 @@ def _entry_time(rm, circulating: bool) -> float:
                   s=rm.lanes[ids["arm0_in_0"]].length - 12.0, speed=4.0)
     if circulating:  # reaches the merge point (the start of ring_1_1) in about 3 s
         traffic.place(1, [ids["ring_1_7"], ids["ring_1_0"], ids["ring_1_1"]], s=8.0, speed=5.0)
-    stop = traffic.map.yield_stop[list(traffic.map.yield_lane).index(ids["arm0_entry"])]
+    stop = traffic.map.merges.stop[list(traffic.map.merges.lane).index(ids["arm0_entry"])]
     passed_line, crossed = [], []
 
     def watch(t):
-        passed_line.append(t.path[0, 0] == ids["arm0_entry"] and _front(t, 0) > stop + 0.3)
+        passed_line.append(t.vehicles.path[0, 0] == ids["arm0_entry"] and _front(t, 0) > stop + 0.3)
         # the circulating car's rear has passed the merge point, now or before
+        v = t.vehicles
         crossed.append(not circulating or (crossed and crossed[-1])
-                       or (t.path[1, 0] == ids["ring_1_1"] and t.s[1] - t.length[1] / 2 > 0.0))
+                       or (v.path[1, 0] == ids["ring_1_1"] and v.s[1] - v.length[1] / 2 > 0.0))
         present = t.present
         assert not len(overlapping_pairs(t.poses()[present], t.half_size[present]))
 
@@ -113,22 +139,25 @@ def test_vehicles_stop_for_a_pedestrian_on_the_crosswalk(roundabout_map):
     rm = roundabout_map
     traffic = _roundabout_traffic(rm, ["car", "pedestrian", "pedestrian", "pedestrian", "pedestrian"])
     lane = rm.lane_id("arm0_in_0")
-    k = int(np.flatnonzero(traffic.map.cross_lane == lane)[0])
-    crossing_s, crossing_u, cw = traffic.map.cross_s[k], traffic.map.cross_u[k], traffic.map.cross_cw[k]
-    ped = int(np.flatnonzero(traffic.ped_cw == cw)[0])
+    crossings = traffic.map.crossings
+    k = int(np.flatnonzero(crossings.lane == lane)[0])
+    crossing_s, crossing_u, cw = crossings.s[k], crossings.u[k], crossings.crosswalk[k]
+    ped = int(np.flatnonzero(traffic.pedestrians.crosswalk == cw)[0])
     for other in range(traffic.np_):
         if other != ped:
-            traffic.place_pedestrian(other, u=-10.0 * traffic.ped_dir[other], direction=1.0, walking=False)
+            traffic.place_pedestrian(other, u=-10.0 * traffic.pedestrians.direction[other], direction=1.0,
+                                     walking=False)
     # a slow pedestrian inside the lane's band, walking across it
     traffic.place_pedestrian(ped, u=crossing_u[0] + 0.5, direction=1.0, walking=True, speed=0.3)
     traffic.place(0, [lane], s=crossing_s[0] - 30.0, speed=7.0)
     fronts, speeds = [], []
-    _run(traffic, 10.0, each=lambda t: (fronts.append(_front(t, 0)), speeds.append(t.v[0])))
+    _run(traffic, 10.0, each=lambda t: (fronts.append(_front(t, 0)), speeds.append(t.vehicles.v[0])))
     assert min(speeds) < 0.1  # it stopped ...
     assert max(fronts) < crossing_s[0] - 0.5  # ... before the crosswalk, and stayed there
     traffic.place_pedestrian(ped, u=20.0, direction=1.0, walking=False)  # the pedestrian has gone
     _run(traffic, 6.0)
-    assert traffic.v[0] > 2.0 and (traffic.path[0, 0] != lane or _front(traffic, 0) > crossing_s[1])  # on
+    v = traffic.vehicles
+    assert v.v[0] > 2.0 and (v.path[0, 0] != lane or _front(traffic, 0) > crossing_s[1])  # on
 
 
 @pytest.mark.parametrize("on_lane", [True, False])
@@ -142,7 +171,7 @@ def test_vehicles_brake_for_the_ego_ahead(on_lane):
     ego = EgoState(120.0, 0.0, 0.0, 0.0, 4.8, 1.83, np.array([lane]) if on_lane else None, 120.0)
     _run(traffic, 25.0, ego=lambda: ego)
     gap = 120.0 - 2.4 - traffic.poses()[0, 0] - 2.25
-    assert traffic.v[0] < 0.05 and 1.5 < gap < 8.0, gap
+    assert traffic.vehicles.v[0] < 0.05 and 1.5 < gap < 8.0, gap
 
 
 def test_reckless_ego_still_hits_traffic():
@@ -256,9 +285,9 @@ def test_advance_writes_each_substep_pose_into_the_data_given():
     decisions = 0
     for i in range(3 * traffic.n_plan + 5):
         data = datas[(i // 4) % 2]  # four substeps into one, then four into the other
-        k = traffic._k
+        k = traffic.cursor().k
         traffic.advance(SUBSTEP, None, data)
-        decisions += traffic._k < k
+        decisions += traffic.cursor().k < k
         expected = mujoco.MjData(model)
         traffic.write(expected)
         assert np.array_equal(data.mocap_pos, expected.mocap_pos), i

@@ -43,8 +43,8 @@ def lanes_driven(traffic: Traffic, row: int, seconds: float) -> list[int]:
     seen: list[int] = []
 
     def note():
-        current = int(traffic.path[row, 0])
-        if traffic.active[row] and (not seen or seen[-1] != current):
+        current = int(traffic.vehicles.path[row, 0])
+        if traffic.vehicles.active[row] and (not seen or seen[-1] != current):
             seen.append(current)
 
     run(traffic, seconds, note)
@@ -71,7 +71,7 @@ def merge_order(courtesy: int) -> tuple[int, int]:
 
     def note():
         for row in (0, 1):
-            if traffic.path[row, 0] == after and row not in first:
+            if traffic.vehicles.path[row, 0] == after and row not in first:
                 first.append(row)
 
     run(traffic, 20.0, note)
@@ -89,12 +89,12 @@ def test_a_lane_change_intention_ends_in_the_named_lane(start, wish, end):
     traffic, rm = scene(("road",), n=1)
     traffic.place(0, [lane(rm, start)], 20.0, 8.0, desired_speed=8.0, intentions={"lane_change": wish})
     run(traffic, 12.0)
-    assert traffic.path[0, 0] == lane(rm, end)
-    assert traffic.lc_dist[0] >= traffic.config.lane_change_length  # moved over completely
+    assert traffic.vehicles.path[0, 0] == lane(rm, end)
+    assert traffic.vehicles.lc_dist[0] >= traffic.config.lane_change_length  # moved over completely
     x, y, yaw = traffic.poses()[traffic.vehicle_slots[0]]
     s, d = rm.lanes[lane(rm, end)].frame(np.array([x, y]))[:2]
-    assert abs(d - traffic.d_pref[0]) < 0.05  # centred in the new lane (at its own preferred offset)
-    assert traffic.intention[0, LANE_CHANGE] == 0  # the manoeuvre is over: it now keeps its lane
+    assert abs(d - traffic.vehicles.d_pref[0]) < 0.05  # centred in the new lane (at its own preferred offset)
+    assert traffic.vehicles.intention[0, LANE_CHANGE] == 0  # the manoeuvre is over: it now keeps its lane
 
 
 def test_keep_intention_never_changes_lane():
@@ -111,7 +111,7 @@ def test_roundabout_intention_is_the_exit_relative_to_the_egos(wish):
     traffic, rm = scene(("roundabout",), n=1)
     route = rm.shortest_route(lane(rm, "roundabout/arm2_in_0"), lane(rm, "roundabout/arm0_out_0"))
     traffic.set_ego_route(route)
-    ego_exit = traffic.ego_exit
+    ego_exit = traffic.routes.ego_exit
     assert rm.lanes[ego_exit].name == "roundabout/arm0_exit"
     traffic.place(0, [lane(rm, "roundabout/arm1_in_0")], 40.0, 4.0, intentions={"roundabout": wish})
     driven = lanes_driven(traffic, 0, 40.0)
@@ -124,7 +124,7 @@ def test_roundabout_intention_is_the_exit_relative_to_the_egos(wish):
         ring_before_exit = driven[: driven.index(exits[0])]
         ego_exit_ring = rm.predecessors(ego_exit)[0]
         assert ego_exit_ring in ring_before_exit
-    assert traffic.intention[0, ROUNDABOUT] == wish
+    assert traffic.vehicles.intention[0, ROUNDABOUT] == wish
 
 
 def test_the_minor_road_gives_way_at_the_crossroad():
@@ -138,7 +138,7 @@ def test_the_minor_road_gives_way_at_the_crossroad():
 
     def note():
         for row in (0, 1):
-            if int(traffic.path[row, 0]) in crossing and row not in order:
+            if int(traffic.vehicles.path[row, 0]) in crossing and row not in order:
                 order.append(row)
 
     run(traffic, 20.0, note)
@@ -154,11 +154,11 @@ def free_run(traffic: Traffic, seconds: float) -> tuple[int, float, dict]:
     vanished: dict[str, int] = {}
     queued = np.zeros(traffic.nv, dtype=bool)
     for step in range(int(round(seconds / SUBSTEP))):
-        before, was_active = traffic.path[:, 0].copy(), traffic.active.copy()
+        before, was_active = traffic.vehicles.path[:, 0].copy(), traffic.vehicles.active.copy()
         generation = traffic.generation[traffic.vehicle_slots].copy()
         traffic.advance(SUBSTEP)
         replaced = traffic.generation[traffic.vehicle_slots] != generation  # left and re-entered at once
-        for row in np.flatnonzero(was_active & (~traffic.active | replaced)):  # rare: where vehicles leave
+        for row in np.flatnonzero(was_active & (~traffic.vehicles.active | replaced)):  # rare: where vehicles leave
             name = traffic.map.road_map.lanes[before[row]].name
             vanished[name] = vanished.get(name, 0) + 1
         present = traffic.present
@@ -167,7 +167,7 @@ def free_run(traffic: Traffic, seconds: float) -> tuple[int, float, dict]:
         if step % traffic.n_plan == 0:
             gap, leader_speed = path_leaders(traffic)
             queued = (gap < 8.0) & (leader_speed < 0.5)
-        stopped = np.where(traffic.active & (speed < 0.1) & ~queued, stopped + SUBSTEP, 0.0)
+        stopped = np.where(traffic.vehicles.active & (speed < 0.1) & ~queued, stopped + SUBSTEP, 0.0)
         worst = max(worst, stopped.max())
     return overlaps, worst, vanished
 
@@ -205,7 +205,7 @@ def test_concatenated_map_two_minutes_without_overlap_or_deadlock():
     overlaps, worst, _ = free_run(traffic, 120.0)
     assert overlaps == 0 and worst < 30.0
     assert traffic.stats["spawned"] > 20
-    assert set(np.unique(traffic.intention[traffic.active], axis=0).ravel()) <= {0, 1, 2}
+    assert set(np.unique(traffic.vehicles.intention[traffic.vehicles.active], axis=0).ravel()) <= {0, 1, 2}
 
 
 def test_a_waiting_minor_road_car_gets_its_turn_within_half_a_minute():
@@ -220,11 +220,9 @@ def test_a_waiting_minor_road_car_gets_its_turn_within_half_a_minute():
 
 
 def test_intention_draws_are_generator_choice():
-    """`intentions.draw` makes the same draws and values as `Generator.choice(n, size, p=shares)` (what the
-    committed urban results were made with), for any shares and any number of vehicles."""
-    from types import SimpleNamespace
-
-    from mjdrive.traffic.intentions import SCENARIOS, draw
+    """`intentions.draw_intentions` makes the same values from the same draws as `Generator.choice(n, size,
+    p=shares)` (what the committed urban results were made with), for any shares and any number of vehicles."""
+    from mjdrive.traffic.intentions import SCENARIOS, draw_intentions, intention_table
 
     rng = np.random.default_rng(0)
     for _ in range(300):
@@ -234,12 +232,13 @@ def test_intention_draws_are_generator_choice():
                             roundabout_intentions=shares[3])
         rows = np.sort(rng.choice(12, int(rng.integers(1, 6)), replace=False))
         seed = int(rng.integers(2**31))
-        t = SimpleNamespace(config=cfg, intent_rng=np.random.default_rng(seed), intention=np.zeros((12, 4), int),
-                            ring_passed=np.ones(12, dtype=bool))
-        draw(t, rows)
+        intention = np.zeros((12, 4), dtype=np.int64)
+        cdfs, columns = intention_table(cfg)
+        draws = np.random.default_rng(seed)
+        draw_intentions(intention, rows, draws.random((len(columns), len(rows))), cdfs, columns)
         reference = np.random.default_rng(seed)
         for column, p in enumerate(shares):
             p = np.asarray(p) / np.sum(p)
-            assert np.array_equal(t.intention[rows, column], reference.choice(len(p), size=len(rows), p=p))
-        assert t.intent_rng.random() == reference.random()  # the same draws consumed
-        assert not t.ring_passed[rows].any() and len(SCENARIOS) == 4
+            assert np.array_equal(intention[rows, column], reference.choice(len(p), size=len(rows), p=p))
+        assert draws.random() == reference.random()  # the same draws consumed
+        assert not intention[np.setdiff1d(np.arange(12), rows)].any() and len(SCENARIOS) == 4

@@ -378,7 +378,7 @@ def test_contact_sensors_agree_with_the_contact_list():
     from mjdrive.sensors import CollisionSensor
 
     env = suite.load("roundabout", "d210", {"random": 1})
-    env.physics.python_chunks = True  # a sample at every chunk (the compiled chunks check the counts only)
+    env.physics.every_chunk = True  # a sample at every chunk (the substep loop checks the counts only)
     scan = CollisionSensor(env.physics.model.ptr)
     scan._counts = None  # the contact list only
     sensor = env.task.collision_sensor
@@ -405,7 +405,7 @@ def test_tasks_sample_contacts_every_20ms_whatever_the_step(name, dt):
 
     domain, task = name.split("/")
     env = suite.load(domain, task, {"random": 0, "physics_dt": dt})
-    env.physics.python_chunks = True  # the compiled chunks check at the same chunks (tests/test_chunks.py)
+    env.physics.every_chunk = True  # the substep loop checks at the same chunks (tests/test_stepping.py)
     env.reset()
     samples = []
     sample = env.task.collision_sensor.sample

@@ -52,8 +52,8 @@ def test_overlay_draws_text_and_legend_and_the_last_frame_holds_the_outcome(tmp_
 def test_replay_video_has_a_frame_per_step_and_holds_the_outcome(tmp_path):
     import imageio.v2 as imageio
 
+    from mjdrive.envs.replay import replay
     from mjdrive.record import RecordEpisodes
-    from mjdrive.record.replay import replay
 
     env = RecordEpisodes(make_env("waypoints", "straight", time_limit=1.0), tmp_path)
     env.reset(seed=2)

@@ -34,8 +34,8 @@ def test_the_preload_opens_no_gl_display_and_starts_no_thread():
 
 def test_the_traffic_kernels_keep_their_cache_directory_after_the_preload():
     """numba reads NUMBA_CACHE_DIR at its import: imported by the preload first, it must still find the
-    kernels' compiled code where `mjdrive.traffic.kernels` keeps it (not in the source tree)."""
-    code = ("{}import mjdrive.traffic.kernels as k; from mjdrive.compiled import numba_cache_dir; "
+    kernels' compiled code where `mjdrive.traffic.following` keeps it (not in the source tree)."""
+    code = ("{}import mjdrive.traffic.following as k; from mjdrive.compiled import numba_cache_dir; "
             "from numba.core import config; "
             "print(config.CACHE_DIR, numba_cache_dir(), k.gap_summary._cache._cache_path)")
     env = {key: value for key, value in os.environ.items() if key != "NUMBA_CACHE_DIR"}

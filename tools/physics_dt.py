@@ -40,7 +40,7 @@ from mjdrive import world
 from mjdrive.bench import calls_per_second
 from mjdrive.cli import ArgumentParser, int_at_least, positive_float, run_reporting_errors
 from mjdrive.sensors import CollisionSensor
-from mjdrive.tasks import chunks
+from mjdrive.tasks import stepping
 from mjdrive.traffic import ROAD_USER_TYPES, TrafficConfig, overlapping_pairs, slots
 from mjdrive.vehicle import VEHICLES, Vehicle
 
@@ -347,7 +347,7 @@ def throughput_section(dts: list[float], seconds: float, rounds: int) -> list[st
 def profile(dt: float, steps: int, task_name: str = "roundabout/d210") -> dict[str, float]:
     """Wall time [ms] per env step of a task with traffic (features, the ego braking where it starts: at its
     yield line on the roundabout) by part: each part's functions are wrapped with a timer on this env only.
-    Also MuJoCo's time per physics step [us] in the compiled chunks (a control step's first chunk run alone, right
+    Also MuJoCo's time per physics step [us] in the substep loop (a control step's first chunk run alone, right
     after the step's Python, and all other runs), raw `mj_step` in a tight loop from the env's own state, and the
     traffic's motion replayed (`traffic_replay`)."""
     env = load(*task_name.split("/"), dt)
@@ -378,18 +378,18 @@ def profile(dt: float, steps: int, task_name: str = "roundabout/d210") -> dict[s
     # [s], physics steps: kernel runs of a control step's first chunk alone (handed back after it: a decision is
     # due), and all other runs
     kernel_runs = {"first": [0.0, 0], "rest": [0.0, 0]}
-    kernel = chunks.run_chunks
+    kernel = stepping.run_chunks
 
     def timed_kernel(*args):
         start = time.perf_counter()
         out = kernel(*args)
-        first = args[3] == env.n_sub_steps and out[0] == physics.substep_interval  # args[3]: steps left; out[0]: done
+        first = args[1] == env.n_sub_steps and out[0] == physics.substeps.chunk  # args[1]: steps left; out[0]: done
         runs = kernel_runs["first" if first else "rest"]
         runs[0] += time.perf_counter() - start
         runs[1] += out[0]
         return out
 
-    chunks.run_chunks = timed_kernel
+    stepping.run_chunks = timed_kernel
     hold = np.array([0.0, 0.0, 1.0])
     try:
         for _ in range(20):
@@ -403,7 +403,7 @@ def profile(dt: float, steps: int, task_name: str = "roundabout/d210") -> dict[s
                 env.reset()
         total = time.perf_counter() - start
     finally:
-        chunks.run_chunks = kernel
+        stepping.run_chunks = kernel
     model = physics.model.ptr
     data = mujoco.MjData(model)  # the env's state, its traffic held where it is (as `mjdrive bench` measures)
     for field in ("qpos", "qvel", "act", "ctrl", "mocap_pos", "mocap_quat"):
@@ -443,7 +443,7 @@ def traffic_replay(env, steps: int, rounds: int = 5) -> dict[str, float]:
     each substep as the env wrote them ("moving", the writes' own time taken off): what moving traffic costs
     MuJoCo itself. Best of `rounds`."""
     physics, traffic = env.physics, env.task.traffic
-    physics.python_chunks = True  # every substep's poses through `Traffic.advance`, recorded here
+    physics.every_chunk = True  # every substep's poses through `Traffic.advance`, recorded here
     poses: list[tuple[np.ndarray, np.ndarray]] = []
     advance = traffic.advance
 
@@ -462,9 +462,9 @@ def traffic_replay(env, steps: int, rounds: int = 5) -> dict[str, float]:
                 break
     finally:
         traffic.advance = advance
-        physics.python_chunks = False
+        physics.every_chunk = False
     model, data = physics.model.ptr, mujoco.MjData(physics.model.ptr)
-    chunk = physics.substep_interval
+    chunk = physics.substeps.chunk
 
     def replay(write: bool, step: bool) -> float:
         mujoco.mj_resetData(model, data)
@@ -501,8 +501,8 @@ def profile_section(dt: float, steps: int, task_name: str = "roundabout/d210") -
     for key, value in r.items():
         lines.append(f"| {key} | {value:.3f} | {value / r['env step']:.0%} |")
     lines.append(f"| env/raw | {r['raw mj_step of a control step'] / r['env step']:.0%} | |")
-    if per_step:  # the compiled chunks ran (numba installed)
-        lines += ["", f"MuJoCo per physics step in the compiled chunks: {per_step['first']:.2f} us in a control step's "
+    if per_step:  # the substep loop's kernel ran
+        lines += ["", f"MuJoCo per physics step in the substep loop: {per_step['first']:.2f} us in a control step's "
                   f"first chunk run alone (right after the step's Python, a decision due after it), "
                   f"{per_step['rest']:.2f} us in all other runs; raw `mj_step` in a tight loop from the env's state "
                   f"(traffic held): {per_step['raw']:.2f} us. The same physics replayed in a tight loop (a fresh "

@@ -32,14 +32,14 @@ QUEUE_GAP = 8.0  # [m] bumper to bumper behind a stopped leader: queued
 
 def path_leaders(traffic) -> tuple[np.ndarray, np.ndarray]:
     """Gap [m] to the nearest agent ahead on each vehicle's planned path and that agent's speed [m/s]."""
-    ctx = traffic._context()
+    agents, vehicles = traffic.agents(), traffic.vehicles
     nv = traffic.nv
-    pos = ctx["offset"][:nv, ctx["lane"]] + ctx["s"][None]  # (V, A) [m]
-    ahead = pos > traffic.s[:, None]
+    pos = agents.offset[:nv, agents.path[:, 0]] + agents.s[None]  # (V, A) [m]
+    ahead = pos > vehicles.s[:, None]
     ahead[np.arange(nv), np.arange(nv)] = False
-    gap = np.where(ahead, pos - traffic.s[:, None] - (traffic.length[:, None] + ctx["length"][None]) / 2, np.inf)
+    gap = np.where(ahead, pos - vehicles.s[:, None] - (vehicles.length[:, None] + agents.length[None]) / 2, np.inf)
     leader = np.argmin(gap, axis=1)
-    return gap[np.arange(nv), leader], ctx["v"][leader]
+    return gap[np.arange(nv), leader], agents.v[leader]
 
 
 def run(name: str, seed: int, minutes: float) -> dict:
@@ -53,7 +53,7 @@ def run(name: str, seed: int, minutes: float) -> dict:
     stopped, excused_free, worst_free, worst_any = np.zeros(traffic.nv), np.zeros(traffic.nv), 0.0, 0.0
     overlap_substeps = 0
     passes = np.zeros(traffic.map.n_lanes, dtype=np.int64)  # vehicles that left each lane
-    lane_before = traffic.path[:, 0].copy()
+    lane_before = traffic.vehicles.path[:, 0].copy()
     traffic.cpu_time = 0.0
     decision = traffic.n_plan
     for step in range(n_steps):
@@ -61,12 +61,12 @@ def run(name: str, seed: int, minutes: float) -> dict:
         present = traffic.present
         if len(overlapping_pairs(traffic.poses()[present], traffic.half_size[present])):
             overlap_substeps += 1
-        lane_now = np.where(traffic.active, traffic.path[:, 0], -1)
+        lane_now = np.where(traffic.vehicles.active, traffic.vehicles.path[:, 0], -1)
         left = (lane_before >= 0) & (lane_now != lane_before)
         np.add.at(passes, lane_before[left], 1)
         lane_before = lane_now
         speed = traffic.velocities()[traffic.vehicle_slots]
-        still = traffic.active & (np.hypot(speed[:, 0], speed[:, 1]) < STOPPED)
+        still = traffic.vehicles.active & (np.hypot(speed[:, 0], speed[:, 1]) < STOPPED)
         stopped = np.where(still, stopped + dt, 0.0)
         if step % decision == 0:
             gap, leader_speed = path_leaders(traffic)

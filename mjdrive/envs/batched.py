@@ -8,18 +8,18 @@
 Each copy is a `DrivingGymEnv` (own MjModel/MjData, own task and random stream). `task` may be a list of
 tasks of one domain (e.g. the roundabout's four densities): copy i runs `task[i % len(task)]`; their observation
 and action spaces must match. A step maps the actions, runs every copy's `DrivingGymEnv.before_physics`, advances
-all physics in ONE call (`backend`), then runs every copy's `DrivingGymEnv.after_physics` -- the two halves of
-the single env's `step` (`DrivingEnvironment.step`), so the "threads" and "serial" backends give bit-identical
-episodes to the single env.
+all physics (`backend`), then runs every copy's `DrivingGymEnv.after_physics` -- the two halves of the single
+env's `step` (`DrivingEnvironment.step`), so the "threads" and "serial" backends give bit-identical episodes to
+the single env.
 
-Backends for the physics call:
-  "serial":  `mj_step` on each copy in turn (reference).
-  "threads": `mj_step` on each copy in a thread pool of `nthread` (MuJoCo releases the GIL in `mj_step`).
-A task's `Physics.substep_callback` (the roundabout's traffic) runs between chunks as in `Physics.advance`
-(both through `mjdrive.tasks.base.step_in_chunks`).
-  "rollout": `mujoco.rollout` over all copies (state in/out as arrays, ctrl and mocap as controls). The state
-             is written back with `mj_setState` + `mj_forward`, so contacts are those of the final state and
-             the solver warm start is not carried over: close to, but not bit-identical with, the others.
+Backends for the physics:
+  "serial":  each copy's control step of physics (`Physics.advance`: the substep loop, `mjdrive.tasks.stepping`,
+             with the task's work between chunks, e.g. the traffic) in turn (reference).
+  "threads": the same, the copies in a thread pool of `nthread` (the loop's compiled chunks release the GIL).
+  "rollout": `mujoco.rollout` over all copies, chunk by chunk (state in/out as arrays, ctrl and mocap as controls),
+             each copy's work between chunks by the substep loop. The state is written back with `mj_setState` +
+             `mj_forward`, so contacts are those of the final state and the solver warm start is not carried over:
+             close to, but not bit-identical with, the others.
 
 An episode that ends is reset at once; the returned observation is the new episode's first one and the
 last observation of the ended episode is in `info["final_observation"]` (rows of the envs that did not
@@ -41,7 +41,6 @@ import numpy as np
 
 from mjdrive.envs.gym_env import DrivingGymEnv, make_env
 from mjdrive.record.recorder import EnvSpec, EpisodeRecorder
-from mjdrive.tasks.base import step_in_chunks
 
 BACKENDS = ("serial", "threads", "rollout")
 _CONTROL_SPEC = (mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_MOCAP_POS
@@ -209,35 +208,40 @@ class BatchedEnv:
 
     def step_physics(self) -> None:
         """Advance every copy's physics one env step (between the copies' `before_physics` and `after_physics`):
-        one call of the backend per control period (each copy's `before_tick` first), the substep callbacks
+        per control period, each copy's `before_tick` first, then the period's physics with each copy's work
         between chunks as in `Physics.advance`."""
         physics = [base.dm_env.physics for base in self.bases]
+        n_sub = self.tick_steps
         for k in range(self.bases[0].task.control_ticks):
             for base in self.bases:
                 base.dm_env.before_tick(k)
-            step_in_chunks(physics, self.tick_steps, self._step_all)
+            if self.backend == "rollout":
+                chunk = physics[0].substeps.chunk
+                for start in range(0, n_sub, chunk):
+                    n = min(chunk, n_sub - start)
+                    self._rollout_all(n)
+                    for p in physics:
+                        p.substeps.between_chunks(p, n)
+            elif self._pool is not None:
+                list(self._pool.map(lambda p: p.advance(n_sub), physics))
+            else:
+                for p in physics:
+                    p.advance(n_sub)
 
-    def _step_all(self, n_sub: int) -> None:
-        """`n_sub` physics steps of every copy in one call of the backend."""
-        if self.backend == "rollout":
-            control = np.empty((self.num_envs, n_sub, self._control_size))
-            states = np.empty((self.num_envs, n_sub, self._state.shape[1]))
-            for i, (m, d) in enumerate(zip(self._models, self._datas, strict=True)):
-                mujoco.mj_getState(m, d, self._state[i], _STATE_SPEC)
-                mujoco.mj_getState(m, d, control[i, 0], _CONTROL_SPEC)
-                control[i, 1:] = control[i, 0]  # ctrl and mocap held over the chunk
-                self._warmstart[i] = d.qacc_warmstart
-            self._rollout.rollout(self._models, self._scratch, self._state, control, control_spec=_CONTROL_SPEC,
-                                  nstep=n_sub, initial_warmstart=self._warmstart, state=states, skip_checks=True)
-            for i, (m, d) in enumerate(zip(self._models, self._datas, strict=True)):
-                mujoco.mj_setState(m, d, states[i, -1], _STATE_SPEC)
-                mujoco.mj_forward(m, d)
-        elif self._pool is not None:
-            pairs = zip(self._models, self._datas, strict=True)
-            list(self._pool.map(lambda md: mujoco.mj_step(md[0], md[1], n_sub), pairs))
-        else:
-            for m, d in zip(self._models, self._datas, strict=True):
-                mujoco.mj_step(m, d, n_sub)
+    def _rollout_all(self, n_sub: int) -> None:
+        """`n_sub` physics steps of every copy in one `mujoco.rollout` call."""
+        control = np.empty((self.num_envs, n_sub, self._control_size))
+        states = np.empty((self.num_envs, n_sub, self._state.shape[1]))
+        for i, (m, d) in enumerate(zip(self._models, self._datas, strict=True)):
+            mujoco.mj_getState(m, d, self._state[i], _STATE_SPEC)
+            mujoco.mj_getState(m, d, control[i, 0], _CONTROL_SPEC)
+            control[i, 1:] = control[i, 0]  # ctrl and mocap held over the chunk
+            self._warmstart[i] = d.qacc_warmstart
+        self._rollout.rollout(self._models, self._scratch, self._state, control, control_spec=_CONTROL_SPEC,
+                              nstep=n_sub, initial_warmstart=self._warmstart, state=states, skip_checks=True)
+        for i, (m, d) in enumerate(zip(self._models, self._datas, strict=True)):
+            mujoco.mj_setState(m, d, states[i, -1], _STATE_SPEC)
+            mujoco.mj_forward(m, d)
 
     def _stack(self, observations: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
         return {key: np.stack([obs[key] for obs in observations]) for key in self.single_observation_space}

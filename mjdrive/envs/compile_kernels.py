@@ -1,8 +1,9 @@
 """`python -m mjdrive.envs.compile_kernels`: compile every numba kernel into the on-disk cache once (`make install`
-runs it), so that no env or worker pays the compilation later: the traffic's and the route frame's
-(`mjdrive.traffic.compile_kernels`), then the tasks' per-step kernels (ego updates, observations) and the physics
-chunks (`tasks.chunks`), by stepping a roundabout env (with pedestrians) and the concatenated urban route, and the
-scripted drivers' lane kernels on their routes. Prints where the cache is and how long it took."""
+runs it), so that no env or worker pays the compilation later: by stepping a roundabout env (with pedestrians) and
+the concatenated urban route (the traffic's kernels, the tasks' ego updates and observations, the substep loop),
+querying a leader, a decision env (the operative level's MPC check, the ego's give-way query), and the scripted
+drivers' lane kernels on their routes. Prints where the cache is and how long
+it took; `uncompiled()` names the kernels a process has not compiled or loaded yet."""
 
 from __future__ import annotations
 
@@ -11,36 +12,62 @@ import time
 
 import numpy as np
 
-from mjdrive import suite
-from mjdrive.compiled import KERNELS, numba_cache_dir
-from mjdrive.traffic import compile_kernels as traffic_kernels
+from mjdrive import suite, vehicle
+from mjdrive.compiled import INTERPRETED, numba_cache_dir
+from mjdrive.control import mpc
+from mjdrive.roads import _spatial, lane, route_frame
+from mjdrive.tasks import kernels, stepping
+from mjdrive.traffic import (
+    conflicts,
+    following,
+    intentions,
+    lane_changes,
+    lanes,
+    merges,
+    motion,
+    pedestrians,
+    spawning,
+    state,
+)
 
 WARM_STEPS = 12  # control steps per env: over two traffic decisions on each
+MODULES = (state, lanes, intentions, motion, following, conflicts, merges, lane_changes, pedestrians, spawning,
+           kernels, stepping, lane, route_frame, _spatial, vehicle, mpc)  # those that hold kernels
 
 
 def compile_kernels() -> float:
-    """The traffic's kernels, then envs whose observations call the tasks' kernels; the wall time [s] it took
-    (compiling, or loading the cache)."""
+    """Run every kernel; the wall time [s] it took (compiling, or loading the cache)."""
     start = time.perf_counter()
-    traffic_kernels.compile_kernels()
     for domain, task, kwargs in (("roundabout", "d120", {"road_users": {"car": 6, "motorcycle": 1, "pedestrian": 2}}),
-                                 ("urban", "concatenated", {})):
+                                 ("urban", "concatenated", {}), ("urban", "crossroad", {"decisions": True})):
         env = suite.load(domain, task, {"random": 0, **kwargs})
         env.reset()
+        action = 0 if kwargs.get("decisions") else np.array([0.3, 0.0, 0.0])
         for _ in range(WARM_STEPS):
-            env.step(np.array([0.3, 0.0, 0.0]))
-        route = env.task.route_lane  # the scripted drivers' lane kernels
-        route.local_coordinates(route.centre[3])
+            env.step(action)
+        traffic, route = env.task.traffic, env.task.route_lane
+        traffic.leader(traffic.vehicles.path[0], 0.0)
+        if domain == "urban":
+            env.task.relevant_point()
+            traffic.give_way(env.task.ego_state(env.physics))
+        route.local_coordinates(route.centre[3])  # the scripted drivers' lane kernels
         route.max_abs_curvature(0.0, 20.0)
         route.point(1.0)
         env.close()
     return time.perf_counter() - start
 
 
+def uncompiled() -> list[str]:
+    """The kernels (called from Python; not the helpers inlined into others) this process has not compiled or
+    loaded yet: none after `compile_kernels`."""
+    return [f"{module.__name__}.{name}" for module in MODULES for name, fn in vars(module).items()
+            if hasattr(fn, "signatures") and fn.py_func.__module__ == module.__name__ and not fn.signatures
+            and fn.targetoptions.get("inline") != "always"]
+
+
 def main() -> int:
-    if not KERNELS:
-        print("kernels: numba is not installed (pip install 'mjdrive[fast]'), or MJDRIVE_NO_KERNELS is set: the "
-              "numpy code runs")
+    if INTERPRETED:
+        print("kernels: MJDRIVE_INTERPRETED is set: the kernels run as Python, nothing to compile")
         return 0
     print(f"kernels: compiling into {numba_cache_dir()} ...", flush=True)
     print(f"kernels: ready in {compile_kernels():.1f} s")

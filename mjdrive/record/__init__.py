@@ -1,10 +1,11 @@
-"""Episode logs: one MCAP file per episode with Foxglove schemas, and replay from those files.
+"""Episode logs: one MCAP file per episode with Foxglove schemas, and reading them back.
 
     from mjdrive.record import RecordEpisodes, RecordOptions
     env = RecordEpisodes(gymnasium.make("mjdrive/Waypoints-Straight-v0"), "runs/logs",
                          RecordOptions(camera_every=1))
 
-See `recorder.py` for file names and topics, `reader.py` to read files back, `replay.py` to re-simulate.
+See `recorder.py` for file names and topics, `reader.py` to read files back; `mjdrive.envs.replay` re-simulates
+them.
 """
 
 from pathlib import Path

@@ -104,7 +104,10 @@ def roundabout_arms(domain: str, task: str, task_kwargs: dict | None = None) -> 
 
 
 def relative_exit(info: dict, arms: int | None) -> int | None:
-    """The exit counted from the entry (1: the first exit), from the absolute arm indices in `info`."""
+    """The exit counted from the entry (1: the first exit): the roundabout task's `exit_number`, or (in logs older
+    than it) from the absolute arm indices in `info`."""
+    if info.get("exit_number") is not None:
+        return int(info["exit_number"])
     if arms is None or info.get("entry") is None or info.get("exit") is None:
         return None
     return (int(info["exit"]) - int(info["entry"]) - 1) % arms + 1

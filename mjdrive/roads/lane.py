@@ -14,7 +14,7 @@ from enum import IntEnum
 import numpy as np
 from numpy.typing import ArrayLike
 
-from mjdrive.compiled import KERNELS, jit
+from mjdrive.compiled import jit
 from mjdrive.roads import _spatial as sp
 from mjdrive.roads.geometry import wrap_angle
 
@@ -115,8 +115,8 @@ class Lane:
 
     def point(self, s: float) -> tuple[float, float]:
         """The centre-line point (x, y) [m] at arc length s [m], as floats: `position(s)`'s numbers (in one compiled
-        pass within [0, length], with numba)."""
-        if KERNELS and 0.0 <= s <= self.length:
+        pass within [0, length])."""
+        if 0.0 <= s <= self.length:
             return _centre_point(self.s, self.seg_length, self.centre, self.normals, float(s))
         x, y = self.position(s).tolist()
         return x, y
@@ -136,8 +136,6 @@ class Lane:
     def max_abs_curvature(self, start: float, stop: float, n: int = 8) -> float:
         """max |curvature| [1/m] at the n evenly spaced arc lengths from `start` to `stop` [m]
         (`np.max(np.abs(self.curvature(np.linspace(start, stop, n))))`, the same number, in one compiled pass)."""
-        if not KERNELS:
-            return float(np.max(np.abs(self.curvature(np.linspace(start, stop, n)))))
         return _max_abs_curvature(self.s, self.seg_length, self.vertex_curvature, self.length, float(start),
                                   float(stop), int(n))
 
@@ -153,7 +151,7 @@ class Lane:
         single = xy.ndim == 1
         if single and near_s is not None:
             return self.frame(xy, near_s, window)[:2]
-        if single and KERNELS:  # the same numbers in one compiled pass
+        if single:  # in one compiled pass
             s, d = sp.nearest_point(self._table, float(xy[0]), float(xy[1]))
             return float(s), float(d)
         pts = xy.reshape(-1, 2)

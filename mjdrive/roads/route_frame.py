@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mjdrive.compiled import KERNELS, announce_compilation, inline, jit
+from mjdrive.compiled import announce_compilation, inline, jit
 from mjdrive.roads import _spatial as sp
 from mjdrive.roads.lane import Lane
 
@@ -42,20 +42,9 @@ class RouteFrame:
         """(s, d) arrays (K,) for points (K,2); the first point moves the search window (`window`: search these
         segments lo..hi instead)."""
         lo, hi = (0, len(self.x0)) if full else window or self.window()
-        if KERNELS:  # the same numbers in one compiled pass
-            s, d, self.segment = _project(np.ascontiguousarray(points, dtype=np.float64), self.x0, self.y0, self.tx,
-                                          self.ty, self.length, self.s0, lo, hi)
-            return s, d
-        tx, ty = self.tx[lo:hi], self.ty[lo:hi]
-        px, py = points[:, 0:1] - self.x0[lo:hi], points[:, 1:2] - self.y0[lo:hi]  # (K, W)
-        along = px * tx + py * ty
-        side = tx * py - ty * px
-        clamped = np.minimum(np.maximum(along, 0.0), self.length[lo:hi])
-        beyond = along - clamped
-        j = np.argmin(beyond * beyond + side * side, axis=1)
-        rows = np.arange(len(points))
-        self.segment = lo + int(j[0])
-        return self.s0[lo + j] + clamped[rows, j], side[rows, j]
+        points = np.ascontiguousarray(points, dtype=np.float64)
+        s, d, self.segment = _project(points, self.x0, self.y0, self.tx, self.ty, self.length, self.s0, lo, hi)
+        return s, d
 
     def project(self, points: np.ndarray, s_min: float, s_max: float) -> tuple[np.ndarray, np.ndarray]:
         """(s, d) arrays (K,) of points (K, 2) on their nearest segment between s_min and s_max [m] along the route,
@@ -71,10 +60,7 @@ class RouteFrame:
 
     def point(self, x: float, y: float) -> tuple[float, float]:
         """(s, d) [m] of one point (x, y) [m], which moves the search window: `self(np.array([[x, y]]))`'s numbers
-        as floats (without arrays, with numba)."""
-        if not KERNELS:
-            s, d = self(np.array([[x, y]], dtype=np.float64))
-            return float(s[0]), float(d[0])
+        as floats (without arrays)."""
         lo, hi = self.window()
         s, d, segment = nearest_on_segments(float(x), float(y), self.x0, self.y0, self.tx, self.ty, self.length,
                                             self.s0, lo, hi)
@@ -101,8 +87,8 @@ def nearest_on_segments(x, y, x0, y0, tx, ty, length, s0, lo, hi):
 
 @jit
 def _project(points, x0, y0, tx, ty, length, s0, lo, hi):
-    """`RouteFrame.__call__` for the segments lo..hi: (s, d) (K,) and the first point's segment, operation for
-    operation as the numpy code (the first of equally near segments)."""
+    """`RouteFrame.__call__` for the segments lo..hi: (s, d) (K,) and the first point's segment (the first of equally
+    near segments)."""
     n_k = len(points)
     s = np.empty(n_k)
     d = np.empty(n_k)

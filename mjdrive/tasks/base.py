@@ -5,9 +5,9 @@ an exception."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import dm_env
 import mujoco
@@ -21,12 +21,10 @@ from mjdrive.config import Config, ConfigError, param
 from mjdrive.roads import RoadMap
 from mjdrive.roads.geometry import footprint
 from mjdrive.sensors import SENSORS, CameraRenderer, CollisionSensor, ExtraSensors, LaneInvasionSensor
-from mjdrive.tasks.chunks import ChunkRunner
+from mjdrive.tasks.stepping import Substeps
+from mjdrive.traffic import Traffic
 from mjdrive.vehicle import VEHICLES, Vehicle
 from mjdrive.world import PHYSICS_TIMESTEP
-
-if TYPE_CHECKING:
-    from mjdrive.traffic import Traffic
 
 ACTION_NAMES = ("throttle", "steer", "brake")
 ACTION_SPEC = specs.BoundedArray(
@@ -128,53 +126,27 @@ class RoadUsers:
 NO_ROAD_USERS = RoadUsers((), np.zeros((0, 3)), np.zeros((0, 3)))
 
 
-def step_in_chunks(physics: Sequence[Physics], nstep: int, step_all: Callable[[int], None]) -> None:
-    """Advance every one of `physics` (copies of one model) by `nstep` physics steps with `step_all(n)` (which
-    steps them all by n): in one call without a `substep_callback`, else in chunks of `substep_interval` steps
-    with each copy's callback after each chunk (given the chunk's duration [s]). `Physics.advance` steps one
-    copy this way, the batched env many at once."""
-    pairs = [(p, p.substep_callback) for p in physics if p.substep_callback is not None]
-    if not pairs:
-        step_all(nstep)
-        return
-    chunk, dt = physics[0].substep_interval, physics[0].substep_dt  # [-], [s]
-    if not dt:  # a callback set without `set_substeps`
-        dt = float(physics[0].raw_model.opt.timestep)
-    done = 0
-    while done < nstep:
-        n = min(chunk, nstep - done)
-        step_all(n)
-        for p, callback in pairs:
-            callback(p, n * dt)
-        done += n
-
-
 class Physics(dm_mujoco.Physics):
     """dm_control Physics; `raw_model`/`raw_data` are the mujoco structs used on the hot path (attributes, set
     whenever dm_control (re)loads the data).
 
-    A task may register `substep_callback(physics, dt)` with `set_substeps`: `step(n)` then runs the physics in
-    chunks of `substep_interval` steps and calls it after each chunk with the chunk's duration dt [s] (e.g. to move
-    kinematic traffic and write its mocap poses at a finer period than the control period).
+    A task may register `callback(physics, dt)` with `set_substeps`: `step(n)` then runs the physics in chunks and
+    calls it after each chunk that needs it, with the chunk's duration dt [s] (`tasks.stepping`, the substep loop:
+    e.g. to move kinematic traffic and write its mocap poses at a finer period than the control period).
     """
 
-    substep_callback: Callable[[Physics, float], None] | None = None
-    substep_interval: int = 10  # physics steps per callback
-    substep_dt: float = 0.0  # [s] the physics step when `set_substeps` set the callback (0: read it each time)
-    substep_runner: Callable[[Physics, int, Callable[[Physics, float], None]], None] | None = None  # tasks.chunks
-    python_chunks: bool = False  # True: every chunk and callback in Python even with a runner (tests, profiling)
+    substeps: Substeps | None = None
+    every_chunk: bool = False  # True: every chunk's work in the callback (tests that watch each sample)
     raw_model: mujoco.MjModel
     raw_data: mujoco.MjData
 
     def set_substeps(self, callback: Callable[[Physics, float], None] | None, period: float,
-                     runner: Callable[[Physics, int, Callable[[Physics, float], None]], None] | None = None) -> None:
-        """Call `callback(physics, dt)` every `period` [s] of physics (the nearest whole number of physics steps,
-        at least one) from now on; None: no callback. `runner(physics, nstep, callback)` (a `chunks.ChunkRunner`),
-        if given, steps the chunks instead and does the callback's work itself where it can."""
-        self.substep_dt = float(self.raw_model.opt.timestep)  # [s]
-        self.substep_interval = max(1, int(round(period / self.substep_dt)))
-        self.substep_callback = callback
-        self.substep_runner = runner if callback is not None else None
+                     sensor: CollisionSensor | None = None, traffic: Traffic | None = None) -> None:
+        """Run `callback(physics, dt)` between chunks of `period` [s] of physics (the nearest whole number of physics
+        steps, at least one) from now on; None: no callback. With the ego's collision `sensor` and the `traffic` the
+        callback advances, the substep loop does their plain work itself and calls back only where more is due."""
+        self.substeps = None if callback is None else Substeps(self.raw_model.opt.timestep, period, callback, sensor,
+                                                               traffic)
 
     def _reload_from_data(self, data) -> None:
         self.raw_model, self.raw_data = data.model.ptr, data.ptr  # before dm_control's own set-up uses them
@@ -185,13 +157,12 @@ class Physics(dm_mujoco.Physics):
             self.advance(nstep)
 
     def advance(self, nstep: int = 1) -> None:
-        """`nstep` physics steps (with the substep callback), without dm_control's invalid-state check:
+        """`nstep` physics steps (with the substep work), without dm_control's invalid-state check:
         DrivingEnvironment.after_physics checks the warnings itself."""
-        if self.substep_runner is not None and not self.python_chunks:
-            self.substep_runner(self, nstep, self.substep_callback)
-            return
-        model, data = self.raw_model, self.raw_data
-        step_in_chunks((self,), nstep, lambda n: mujoco.mj_step(model, data, n))
+        if self.substeps is None:
+            mujoco.mj_step(self.raw_model, self.raw_data, nstep)
+        else:
+            self.substeps.advance(self, nstep)
 
 
 class DrivingTask(control.Task):
@@ -306,8 +277,7 @@ class DrivingTask(control.Task):
         seconds of physics: the chunk is the nearest whole number of physics steps) from now on."""
         self.lane_invasion_sensor.reset(self.ego_corners(physics))
         self.collision_sensor.reset()
-        physics.set_substeps(self.substep, self.substep_period(),
-                             ChunkRunner.of(self.collision_sensor, self.substep_traffic()))
+        physics.set_substeps(self.substep, self.substep_period(), self.collision_sensor, self.substep_traffic())
 
     def substep_period(self) -> float:
         """[s] of physics between `substep` calls: CONTACT_SAMPLE_PERIOD (tasks that move things between
@@ -316,12 +286,12 @@ class DrivingTask(control.Task):
 
     def substep_traffic(self) -> Traffic | None:
         """The traffic `substep` advances after sampling the contacts (None: it only samples them), for the
-        compiled chunks (`chunks.ChunkRunner`), which do both where they can."""
+        substep loop (`tasks.stepping`), which does both where it can."""
         return None
 
     def substep(self, physics: Physics, dt: float) -> None:
-        """Physics.substep_callback (every `substep_interval` physics steps): sample the ego's contacts.
-        Tasks that move things between chunks (traffic) extend it."""
+        """The substep callback (after a chunk of physics steps that needs it): sample the ego's contacts. Tasks that
+        move things between chunks (traffic) extend it."""
         self.collision_sensor.sample(physics.raw_data)
 
     def road_users(self) -> RoadUsers:

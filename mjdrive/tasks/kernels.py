@@ -1,15 +1,11 @@
 """Compiled parts of the tasks' per-step work (numba, `mjdrive.compiled`): the nearest road users' rows, the
-roundabout and urban tasks' ego updates, the urban task's features.
-
-Each kernel repeats the numpy code of its task operation for operation (the tasks keep that code, which runs
-without numba; tests/test_task_kernels.py holds the two to the same bits). Sines, cosines and hypot are libm's in
-both: numpy (>= 1.25) has no vectorised float64 sine or cosine (it disabled them for their rounding), and no
-vectorised hypot; numba calls libm.
+roundabout and urban tasks' ego updates, the urban task's ego features. Sines, cosines and hypot are libm's.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -18,7 +14,7 @@ from mjdrive.roads.route_frame import nearest_on_segments
 from mjdrive.vehicle import chassis_state
 
 
-@jit
+@inline
 def adversary_rows(out: np.ndarray, present: np.ndarray, positions: np.ndarray, px: float, py: float,
                    speeds: np.ndarray, intentions: np.ndarray, column: int, distance_scale: float,
                    speed_scale: float) -> None:
@@ -138,23 +134,44 @@ def _unit(v: float) -> float:
     return v
 
 
+@inline
+def ego_features(out: np.ndarray, ego, scales) -> None:
+    """The urban task's ego features into `out` (4,) float32, each clipped to [0, 1]: speed / speed scale,
+    (heading error + pi) / 2 pi, (lane offset / off_route + 1) / 2, route s / route end. ego: (speed [m/s], heading
+    error [rad], lane offset [m], route s [m], x [m], y [m]); scales: (speed [m/s], off_route [m], route end [m],
+    distance [m])."""
+    out[0] = _unit(ego[0] / scales[0])
+    out[1] = _unit((ego[1] + math.pi) / (2 * math.pi))
+    out[2] = _unit((ego[2] / scales[1] + 1.0) / 2.0)
+    out[3] = _unit(ego[3] / scales[2])
+
+
+class RoutePoints(NamedTuple):
+    """The conflict points ahead on the urban route: where along it (C,) [m], the scenario each lies in (its index in
+    the task's SCENARIOS), and where they are (C, 2) [m]."""
+
+    s: np.ndarray
+    scenario: np.ndarray
+    xy: np.ndarray
+
+
 @jit
-def urban_features(ego: np.ndarray, adversaries: np.ndarray, speed: float, heading_error: float, lane_offset: float,
-                   route_s: float, off_route: float, route_end: float, speed_scale: float, scenario: int,
-                   at_ego: bool, point_s: np.ndarray, point_scenario: np.ndarray, points: np.ndarray, x: float,
-                   y: float, present: np.ndarray, positions: np.ndarray, speeds: np.ndarray,
-                   intentions: np.ndarray, column: int, distance_scale: float) -> None:
-    """The urban task's `_ego_vector` into `ego` (4,) float32 and `adversary_matrix` into `adversaries` (n, 4)
-    float32 (zeros): distances from the first conflict point (points (C, 2) [m] at route position point_s [m]) of
-    the active scenario no more than 2 m behind the ego, or from the ego (x, y) [m] (`at_ego`, or none)."""
-    ego[0] = _unit(speed / speed_scale)
-    ego[1] = _unit((heading_error + math.pi) / (2 * math.pi))
-    ego[2] = _unit((lane_offset / off_route + 1.0) / 2.0)
-    ego[3] = _unit(route_s / route_end)
-    px, py = x, y
+def relevant_point(points, scenario: int, at_ego: bool, ego) -> tuple[float, float]:
+    """Where the urban task measures adversaries' distances (§5.1.2): the first conflict point of the active
+    `scenario` no more than 2 m behind the ego (`ego` as `ego_features` takes it), or the ego itself (`at_ego`, or
+    none)."""
     if not at_ego:
-        for j in range(point_s.shape[0]):
-            if point_s[j] >= route_s - 2.0 and point_scenario[j] == scenario:
-                px, py = points[j, 0], points[j, 1]
-                break
-    adversary_rows(adversaries, present, positions, px, py, speeds, intentions, column, distance_scale, speed_scale)
+        for j in range(points.s.shape[0]):
+            if points.s[j] >= ego[3] - 2.0 and points.scenario[j] == scenario:
+                return points.xy[j, 0], points.xy[j, 1]
+    return ego[4], ego[5]
+
+
+@jit
+def urban_features(out_ego: np.ndarray, out_adversaries: np.ndarray, ego, scales, points, scenario: int,
+                   at_ego: bool, users, column: int) -> None:
+    """The urban task's features: `ego_features` into out_ego, and `adversary_rows` (users: present, positions,
+    speeds, intentions of every slot) from the `relevant_point` into out_adversaries (zeros)."""
+    ego_features(out_ego, ego, scales)
+    px, py = relevant_point(points, scenario, at_ego, ego)
+    adversary_rows(out_adversaries, users[0], users[1], px, py, users[2], users[3], column, scales[3], scales[0])

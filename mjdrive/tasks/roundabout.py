@@ -28,7 +28,8 @@ Reward, eq. (12): -100 on collision; d_pre - d_cu (remaining route distance [m] 
 step to the next); v/10 with v in km/h clipped to [0, 30] (at most 3); -0.05 x off-road share of the
 footprint; -0.05 x share of the footprint in another lane than the route; +100 on arrival.
 `task.reward_terms` holds the terms of the last step. Episodes end on collision or arrival (terminated)
-or after 1100 steps (truncated). Control at 5 Hz (§5.1).
+or after 1100 steps (truncated). Control at 5 Hz (§5.1). `info` names the entry and exit arms ("entry",
+"exit": absolute arm indices) and the exit counted from the entry ("exit_number", 1: the first exit).
 
 Leaving the route (`off_route` 5 m from its centre line: a missed exit, a drive across the island) also
 ends the episode (terminated, `info["off_route"]`, not a success). The study lists only collision, arrival
@@ -59,10 +60,8 @@ from dm_control.utils import containers
 from dm_env import specs
 
 from mjdrive import roads, world
-from mjdrive.compiled import KERNELS
 from mjdrive.config import ConfigError, param
 from mjdrive.roads import Lane, RoadMap
-from mjdrive.roads.geometry import footprint, wrap_angle
 from mjdrive.roads.route_frame import RouteFrame
 from mjdrive.tasks import kernels
 from mjdrive.tasks.base import (
@@ -184,7 +183,8 @@ class RoundaboutTask(DrivingTask):
     def initialize_episode(self, physics: Physics) -> None:
         rm = self.road_map
         entry = self.entries[self.random.randint(len(self.entries))]
-        exit_arm = (entry + self.exits[self.random.randint(len(self.exits))]) % len(self.arms)
+        exit_number = self.exits[self.random.randint(len(self.exits))]  # counted from the entry (1: the first)
+        exit_arm = (entry + exit_number) % len(self.arms)
         self.entry_arm, self.exit_arm = entry, exit_arm
         self.route = list(self.routes[(entry, exit_arm)])
         self.route_lane = Lane(rm.route_polyline(self.route), name="route")
@@ -211,7 +211,7 @@ class RoundaboutTask(DrivingTask):
             "success": False, "collision": False, "off_road": False, "off_route": False, "physics_error": None,
             "elapsed_time": 0.0, "average_speed": 0.0, "distance": 0.0, "steps": 0, "episode_reward": 0.0,
             "remaining_distance": self.remaining, "route_length": self.destination_s - start_s,
-            "entry": entry, "exit": exit_arm,
+            "entry": entry, "exit": exit_arm, "exit_number": exit_number,
         }
         self._step_reward = 0.0
         self.reward_terms = {}
@@ -224,7 +224,7 @@ class RoundaboutTask(DrivingTask):
         return self.traffic
 
     def substep(self, physics: Physics, dt: float) -> None:
-        """Physics.substep_callback: sample the ego's contacts, then move the traffic (its mocap poses)."""
+        """The substep callback (`tasks.stepping`): sample the ego's contacts, then move the traffic (mocap poses)."""
         data = physics.raw_data
         self.collision_sensor.sample(data)  # DrivingTask.substep
         self.traffic.advance(dt, self._ego_fn, data)
@@ -246,31 +246,19 @@ class RoundaboutTask(DrivingTask):
         return EgoState(x, y, yaw, speed, self.params.length, self.params.width, path, s_lane)
 
     def _update_ego(self, physics: Physics) -> None:
-        data = physics.raw_data
-        if KERNELS:  # the same numbers in one compiled pass
-            frame = self.route_frame
-            lo, hi = frame.window()
-            qa, va = self.vehicle.state_addresses
-            self.corners, self.corner_offsets = self._corner_buffers  # filled in place: read within this step only
-            (x, y, yaw, self.speed, self._left, self.yaw_rate, c, s, self.route_s, self.lane_offset, frame.segment,
-             self.heading_error) = kernels.roundabout_ego(
-                data.qpos, data.qvel, qa, va, self.params.length, self.params.width, frame.x0, frame.y0, frame.tx,
-                frame.ty, frame.length, frame.s0, lo, hi, self.corners, self.corner_offsets)
-            self._chassis = yaw, self.speed, self._left  # `read_chassis`' hand-over to the comfort sample
-            self.xy, self.yaw, self._yaw_cos_sin = np.array([x, y]), yaw, (c, s)
-            self._frame_time = data.time
-            return
-        x, y, yaw, self.speed, self._left, self.yaw_rate = self.read_chassis(data)  # [m/s], [rad/s]
-        self.xy, self.yaw = np.array([x, y]), yaw
-        self._yaw_cos_sin = math.cos(yaw), math.sin(yaw)  # (libm's, as numpy's) for the footprint and observation
-        points = footprint(x, y, yaw, self.params.length, self.params.width, centre=True, cos_sin=self._yaw_cos_sin)
-        self.corners = points[1:]  # (4,2) [m]
-        s, d = self.route_frame(points)
-        self.route_s, self.lane_offset = float(s[0]), float(d[0])  # [m]
-        self.corner_offsets = d[1:]  # [m] of the footprint corners from the route centre line
+        """The ego's chassis state, footprint, route coordinates (its centre's and its corners') and heading error (in
+        one compiled pass)."""
+        data, frame = physics.raw_data, self.route_frame
+        lo, hi = frame.window()
+        qa, va = self.vehicle.state_addresses
+        self.corners, self.corner_offsets = self._corner_buffers  # filled in place: read within this step only
+        (x, y, yaw, self.speed, self._left, self.yaw_rate, c, s, self.route_s, self.lane_offset, frame.segment,
+         self.heading_error) = kernels.roundabout_ego(
+            data.qpos, data.qvel, qa, va, self.params.length, self.params.width, frame.x0, frame.y0, frame.tx,
+            frame.ty, frame.length, frame.s0, lo, hi, self.corners, self.corner_offsets)
+        self._chassis = yaw, self.speed, self._left  # `read_chassis`' hand-over to the comfort sample
+        self.xy, self.yaw, self._yaw_cos_sin = np.array([x, y]), yaw, (c, s)
         self._frame_time = data.time
-        tangent = self.route_frame.tangent[self.route_frame.segment]
-        self.heading_error = float(wrap_angle(yaw - math.atan2(tangent[1], tangent[0])))  # [rad]
 
     def _remaining(self) -> float:
         """Route distance [m] from the ego to the destination."""
@@ -394,25 +382,9 @@ class RoundaboutTask(DrivingTask):
             return out
         c, s = self._yaw_cos_sin
         vx, vy = self.speed, self._left  # `Vehicle.velocity_body`'s numbers, read with the pose
-        if KERNELS:  # the same rows in one compiled pass
-            kernels.road_user_rows(out, traffic.positions(), present, float(self.xy[0]), float(self.xy[1]), float(c),
-                                   float(s), vx, vy, traffic.speeds(), traffic.yaws(), float(self.yaw), self._lengths,
-                                   self._kind_onehot)
-            return out
-        rel = traffic.positions()[present] - self.xy
-        dist2 = rel[:, 0] ** 2 + rel[:, 1] ** 2
-        k = min(self.neighbours, len(present))
-        order = np.argsort(dist2, kind="stable")[:k]
-        idx = present[order]
-        speed, yaw = traffic.speeds()[idx], traffic.yaws()[idx]
-        dyaw = yaw - self.yaw
-        r = rel[order]
-        out[:k, 0] = 1.0
-        out[:k, 1], out[:k, 2] = c * r[:, 0] + s * r[:, 1], -s * r[:, 0] + c * r[:, 1]
-        out[:k, 3], out[:k, 4] = speed * np.cos(dyaw) - vx, speed * np.sin(dyaw) - vy
-        out[:k, 5], out[:k, 6] = np.cos(dyaw), np.sin(dyaw)
-        out[:k, 7:9] = self._lengths[idx]
-        out[:k, 9:] = self._kind_onehot[idx]
+        kernels.road_user_rows(out, traffic.positions(), present, float(self.xy[0]), float(self.xy[1]), float(c),
+                               float(s), vx, vy, traffic.speeds(), traffic.yaws(), float(self.yaw), self._lengths,
+                               self._kind_onehot)
         return out
 
 

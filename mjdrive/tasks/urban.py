@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import collections
 import functools
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,13 +33,11 @@ from dm_control.utils import containers
 from dm_env import specs
 
 from mjdrive import world
-from mjdrive.compiled import KERNELS
 from mjdrive.config import ConfigError, action_index, param
 from mjdrive.control.operative import OperativeConfig, OperativeLevel
 from mjdrive.control.speed_profile import route_speed_profile
 from mjdrive.roads import Lane
 from mjdrive.roads.conflicts import MERGE
-from mjdrive.roads.geometry import wrap_angle
 from mjdrive.roads.ports import ComposedMap
 from mjdrive.roads.route_frame import RouteFrame
 from mjdrive.roads.urban import FOLLOW, UrbanRoute, concatenated, route_offsets, route_through
@@ -141,12 +138,14 @@ class UrbanTask(DrivingTask):
         self._points = np.asarray(route.conflicts.point)[rc.zone] if len(rc) else np.zeros((0, 2))
         self._point_s = np.asarray(rc.s_point, dtype=float)
         self._point_scenario = np.array([route.tactical.scenario_at(s) for s in self._point_s])
-        # for the kernels: the tactical intervals as arrays, scenarios as their index in SCENARIOS
+        self._route_points = kernels.RoutePoints(self._point_s, np.array(
+            [_SCENARIO_CODE[name] for name in self._point_scenario], dtype=np.int64), self._points)
+        self._scales = (SPEED_SCALE, config.off_route, self.route_end, DISTANCE_SCALE)
+        # for the kernels: the tactical intervals as arrays
         intervals = route.tactical.intervals
         self._interval_starts = np.array([s0 for _, s0, _ in intervals], dtype=float)  # [m]
         self._interval_ends = np.array([s1 for _, _, s1 in intervals], dtype=float)  # [m]
         self._interval_names = [name for name, _, _ in intervals] + [FOLLOW]  # index -1: outside every interval
-        self._point_code = np.array([_SCENARIO_CODE[name] for name in self._point_scenario], dtype=np.int64)
         self.step_period = CONTROL_TIMESTEP  # [s] of one env step
         self.decisions: tuple[str, ...] | None = None  # the decision action set's names (None: pedals)
         if config.decisions:
@@ -220,7 +219,7 @@ class UrbanTask(DrivingTask):
         return self.traffic
 
     def substep(self, physics: Physics, dt: float) -> None:
-        """Physics.substep_callback: sample the ego's contacts, then move the traffic."""
+        """The substep callback (`tasks.stepping`): sample the ego's contacts, then move the traffic."""
         data = physics.raw_data
         self.collision_sensor.sample(data)
         self.traffic.advance(dt, self._ego_fn, data)
@@ -315,24 +314,17 @@ class UrbanTask(DrivingTask):
         return EgoState(x, y, yaw, speed, self.params.length, self.params.width, path, s_lane)
 
     def _update_ego(self, physics: Physics) -> None:
-        if KERNELS:  # the same numbers in one compiled pass
-            data, frame = physics.raw_data, self.route_frame
-            lo, hi = frame.window()
-            qa, va = self.vehicle.state_addresses
-            (x, y, yaw, self.speed, left, self.yaw_rate, self.route_s, self.lane_offset, frame.segment, k,
-             self.heading_error) = kernels.urban_ego(data.qpos, data.qvel, qa, va, frame.x0, frame.y0, frame.tx,
-                                                     frame.ty, frame.length, frame.s0, lo, hi,
-                                                     self._interval_starts, self._interval_ends)
-            self._chassis = yaw, self.speed, left  # `read_chassis`' hand-over to the comfort sample
-            self.xy, self._position, self.yaw = np.array([x, y]), (x, y), yaw
-            self.scenario = self._interval_names[k]
-            return
-        x, y, yaw, self.speed, _, self.yaw_rate = self.read_chassis(physics.raw_data)
+        """The ego's chassis state, route coordinates, heading error and active scenario (in one compiled pass)."""
+        data, frame = physics.raw_data, self.route_frame
+        lo, hi = frame.window()
+        qa, va = self.vehicle.state_addresses
+        (x, y, yaw, self.speed, left, self.yaw_rate, self.route_s, self.lane_offset, frame.segment, k,
+         self.heading_error) = kernels.urban_ego(data.qpos, data.qvel, qa, va, frame.x0, frame.y0, frame.tx, frame.ty,
+                                                 frame.length, frame.s0, lo, hi, self._interval_starts,
+                                                 self._interval_ends)
+        self._chassis = yaw, self.speed, left  # `read_chassis`' hand-over to the comfort sample
         self.xy, self._position, self.yaw = np.array([x, y]), (x, y), yaw
-        self.route_s, self.lane_offset = self.route_frame.point(x, y)  # [m]
-        self.scenario = self.urban.tactical.scenario_at(self.route_s)  # the active scenario
-        tangent = self.route_frame.tangent[self.route_frame.segment]
-        self.heading_error = float(wrap_angle(yaw - math.atan2(tangent[1], tangent[0])))  # [rad]
+        self.scenario = self._interval_names[k]
 
     def active_scenario(self) -> str:
         """The tactical trajectory's scenario at the ego's place on the route."""
@@ -390,71 +382,47 @@ class UrbanTask(DrivingTask):
         spec.update(self.sensor_spec(physics))
         return spec
 
+    def _ego(self) -> tuple[float, ...]:
+        """(speed [m/s], heading error [rad], lane offset [m], route s [m], x [m], y [m]) for the kernels."""
+        return (self.speed, self.heading_error, self.lane_offset, self.route_s, *self._position)
+
     def _ego_vector(self) -> np.ndarray:
-        a, b = self.speed / SPEED_SCALE, (self.heading_error + math.pi) / (2 * math.pi)
-        c, d = (self.lane_offset / self.config.off_route + 1.0) / 2.0, self.route_s / self.route_end
-        # clipped before the float32 cast, the same numbers as np.clip after it (0 and 1 are exact; NaN stays)
-        return np.array((min(max(a, 0.0), 1.0), min(max(b, 0.0), 1.0), min(max(c, 0.0), 1.0), min(max(d, 0.0), 1.0)),
-                        np.float32)
+        """(4,) the ego's features in [0, 1] (module docstring)."""
+        out = np.empty(4, np.float32)
+        kernels.ego_features(out, self._ego(), self._scales)
+        return out
 
     def relevant_point(self) -> np.ndarray:
         """Where adversaries' distances are measured (§5.1.2): the next conflict point on the route within
         the active scenario; the ego itself on the two-lane road and outside every scenario."""
         scenario = self.active_scenario()
-        if scenario in (FOLLOW, "lane_change"):
-            return self.xy
-        ahead = np.flatnonzero((self._point_s >= self.route_s - 2.0) & (self._point_scenario == scenario))
-        return self._points[ahead[0]] if len(ahead) else self.xy
+        return np.array(kernels.relevant_point(self._route_points, _SCENARIO_CODE[scenario],
+                                               scenario in (FOLLOW, "lane_change"), self._ego()))
 
     def adversary_matrix(self) -> np.ndarray:
         """(n, 4) the n road users nearest the relevant point: present, distance, speed, intention (in [0, 1])."""
-        traffic, n = self.traffic, self.config.adversaries
-        out = np.zeros((n, ADVERSARY_COLUMNS), np.float32)
-        point = self.relevant_point()
-        scenario = self.scenario
-        column = INTENTION_SCENARIOS.index(scenario) if scenario in INTENTION_SCENARIOS else None
-        if KERNELS:  # the same rows in one compiled pass
-            kernels.adversary_rows(out, traffic.present, traffic.positions(), float(point[0]), float(point[1]),
-                                   traffic.speeds(), traffic.intentions() if column is not None else _NO_INTENTIONS,
-                                   -1 if column is None else column, DISTANCE_SCALE, SPEED_SCALE)
-            return out
-        present = np.flatnonzero(traffic.present)
-        if not len(present):
-            return out
-        rel = traffic.positions()[present] - point
-        dist = np.hypot(rel[:, 0], rel[:, 1])
-        k = min(n, len(present))
-        order = np.argsort(dist, kind="stable")[:k]
-        idx = present[order]
-        out[:k, 0] = 1.0
-        out[:k, 1] = np.minimum(dist[order] / DISTANCE_SCALE, 1.0)
-        out[:k, 2] = np.minimum(traffic.speeds()[idx] / SPEED_SCALE, 1.0)
-        if column is not None:
-            out[:k, 3] = np.maximum(traffic.intentions()[idx, column], 0) / 2.0
-        return out
+        return self._features()[1]
+
+    def _features(self) -> tuple[np.ndarray, np.ndarray]:
+        """The "features" observation's ego (4,) and adversaries (n, 4) (`kernels.urban_features`)."""
+        traffic, scenario = self.traffic, self.scenario
+        column = _INTENTION_COLUMN.get(scenario, -1)
+        ego, adversaries = np.empty(4, np.float32), np.zeros((self.config.adversaries, ADVERSARY_COLUMNS), np.float32)
+        users = (traffic.present, traffic.positions(), traffic.speeds(),
+                 traffic.intentions() if column >= 0 else _NO_INTENTIONS)
+        kernels.urban_features(ego, adversaries, self._ego(), self._scales, self._route_points,
+                               _SCENARIO_CODE[scenario], scenario in (FOLLOW, "lane_change"), users, column)
+        return ego, adversaries
 
     def get_observation(self, physics: Physics) -> collections.OrderedDict:
-        if self.observation != "camera" and KERNELS:  # the same features in one compiled pass
-            rows = np.zeros((self.config.adversaries, ADVERSARY_COLUMNS), np.float32)
-            obs = collections.OrderedDict(ego=np.empty(4, np.float32), scenario=_SCENARIO_ONE_HOT[self.scenario].copy(),
-                                          adversaries=rows)
-            traffic, scenario = self.traffic, self.scenario
-            column = _INTENTION_COLUMN.get(scenario, -1)
-            kernels.urban_features(obs["ego"], obs["adversaries"], self.speed, self.heading_error, self.lane_offset,
-                                   self.route_s, self.config.off_route, self.route_end, SPEED_SCALE,
-                                   _SCENARIO_CODE[scenario], scenario in (FOLLOW, "lane_change"), self._point_s,
-                                   self._point_code, self._points, *self._position,
-                                   traffic.present, traffic.positions(), traffic.speeds(),
-                                   traffic.intentions() if column >= 0 else _NO_INTENTIONS, column, DISTANCE_SCALE)
-            obs.update(self.sensor_observation(physics))
-            return obs
-        ego = self._ego_vector()
         if self.observation == "camera":
             size = self.config.image_size
-            obs = collections.OrderedDict(image=self.render_camera(physics, "ego/front", size, size).copy(), ego=ego)
+            obs = collections.OrderedDict(image=self.render_camera(physics, "ego/front", size, size).copy(),
+                                          ego=self._ego_vector())
         else:
-            scenario = _SCENARIO_ONE_HOT[self.scenario].copy()
-            obs = collections.OrderedDict(ego=ego, scenario=scenario, adversaries=self.adversary_matrix())
+            ego, adversaries = self._features()
+            obs = collections.OrderedDict(ego=ego, scenario=_SCENARIO_ONE_HOT[self.scenario].copy(),
+                                          adversaries=adversaries)
         obs.update(self.sensor_observation(physics))
         return obs
 

@@ -1,15 +1,8 @@
-"""Kinematic traffic on a road map's lane graph: every road user as numpy arrays, no Python loop per user.
+"""Kinematic traffic on a road map's lane graph: every road user as arrays, no Python loop per user.
 
-One module per behaviour over the shared state of `Traffic` (model.py):
-  params.py        road-user kinds, TrafficConfig (validated), EgoState
-  lanes.py         the map as flat build-time tables (TrafficMap): polylines, successors, merges, crosswalks
-  following.py     IDM over one table of gaps (leaders, corridor, stop lines) with a safety cap
-  merges.py        right of way at merges (gap acceptance)
-  lane_changes.py  lane changes to same-direction neighbours
-  pedestrians.py   kerb waits, crossings, occupied crosswalks
-  spawning.py      (re)entry at the map's sources
-  geometry.py      smooth lane-change profile, quaternions, box overlaps
-  model.py         Traffic: state, decisions, closed-form motion, the MuJoCo binding (mocap poses), queries
+One module per behaviour, each holding its own compiled kernels (numba; `mjdrive.compiled`), over state passed as
+named structures of arrays (state.py); `Traffic` (model.py) owns the state and orchestrates. docs/layout.md says
+what each module reads and writes.
 """
 
 from mjdrive.traffic.geometry import overlapping_pairs

@@ -2,31 +2,22 @@
 
 `ApproachTable` turns the roads' `ConflictZones` (one row per pair of lanes that cross or merge, with who
 yields) into approaches: one row per (zone, side), the stretch [s_in, s_out] [m] of the approach lane inside
-the zone and the same stretch on the other lane. At every decision `conflict_stops` adds, for every vehicle,
-a stop line before each zone it must not enter yet:
-
-* a yielding approach waits while a priority agent (a vehicle or the ego) reaches the zone within the
-  critical gap (crossings and merges have their own) or is inside it;
-* on a tie (equal ranks) the agent that reaches the zone later waits;
-* nobody enters a zone while an agent coming from the other lane occupies it;
-* a vehicle that has passed its stop line (committed) goes on.
-Every quantity is an (agents x approaches) array: no loop over road users.
+the zone and the same stretch on the other lane. At every decision `zone_stops` gives every follower a stop line
+before each zone it must not enter yet, and in merges a virtual leader (its docstring has the rules). What every
+agent is to every approach (inside the zone, its time to it, waiting at its line, ...) is computed once per decision
+(`zone_state`), for the agents on each approach's other lane only.
 """
 
 from __future__ import annotations
 
-import functools
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import NamedTuple
 
 import numpy as np
 
+from mjdrive.compiled import inline, jit, maximum, minimum
 from mjdrive.roads.conflicts import CROSSING, TIE, YIELD_A, YIELD_B, ConflictZones
 from mjdrive.traffic.intentions import MERGE, YIELD
 from mjdrive.traffic.lanes import REFERENCE_HALF_SIZE, footprint_points, polyline_distance
-
-if TYPE_CHECKING:
-    from mjdrive.traffic.model import Traffic
 
 STOP_MARGIN = 1.0  # [m] a waiting vehicle's front bumper stays at least this far before the zone
 STOP_CLEARANCE = 0.5  # [m] ... and its footprint this far outside the other lane's strip
@@ -43,9 +34,8 @@ TURN_WAIT = 3.0  # [s] a priority vehicle first in line this long gets its turn
 CLAIM_DECEL = 4.0  # [m/s^2] a priority vehicle stops for a vehicle past its patience if it can at this braking
 
 
-@dataclass(frozen=True)
-class ApproachTable:
-    """One row per (zone, side) of a map's conflict zones."""
+class ApproachTable(NamedTuple):
+    """One row per (zone, side) of a map's conflict zones (R,)."""
 
     lane: np.ndarray  # (R,) the approach lane
     s_in: np.ndarray  # (R,) [m] where the zone starts on it
@@ -61,20 +51,13 @@ class ApproachTable:
     stop: np.ndarray  # (R,) [m] front-bumper stop line along the approach lane
     courtesy: np.ndarray  # (R,) bool: a merge where courteous vehicles open gaps (not a roundabout entry)
     point: np.ndarray  # (R, 2) [m] where the centre lines cross, or the merge point
+    partner: np.ndarray  # (R,) the row of the zone's other side
 
-    @functools.cached_property
-    def partner(self) -> np.ndarray:
-        """(R,) the row of the zone's other side."""
-        half = len(self.lane) // 2
-        return (np.arange(len(self.lane)) + half) % max(len(self.lane), 1)
-
-    @property
-    def other_stop(self) -> np.ndarray:
-        """(R,) [m] the give-way line of the other side's approach, along the other lane."""
-        return self.stop[self.partner]
-
-    def __len__(self) -> int:
-        return len(self.lane)
+    @classmethod
+    def none(cls) -> ApproachTable:
+        """No approaches (a map without conflict zones, or traffic without urban rules)."""
+        i, f, b = np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0, dtype=bool)
+        return cls(i, f, f, i, f, f, b, b, b, b, i, f, b, np.zeros((0, 2)), i)
 
     @classmethod
     def from_zones(cls, zones: ConflictZones, road_map=None, ring: np.ndarray | None = None) -> ApproachTable:
@@ -83,6 +66,7 @@ class ApproachTable:
         otherwise reach into it)."""
         z = np.arange(len(zones))
         tie = zones.who_yields == TIE
+        n = 2 * len(zones)
         table = cls(
             lane=np.concatenate([zones.lane_a, zones.lane_b]).astype(np.int64),
             s_in=np.concatenate([zones.s_a_in, zones.s_b_in]), s_out=np.concatenate([zones.s_a_out, zones.s_b_out]),
@@ -93,15 +77,15 @@ class ApproachTable:
             merge=np.concatenate([zones.kind != CROSSING] * 2),
             zone=np.concatenate([z, z]), stop=np.concatenate([zones.s_a_in, zones.s_b_in]) - STOP_MARGIN,
             courtesy=np.concatenate([zones.kind != CROSSING] * 2), point=np.concatenate([zones.point] * 2),
+            partner=(np.arange(n) + n // 2) % max(n, 1),
         )
         if road_map is not None:  # merges inside a junction are taken like crossings, at the junction's entry
             in_junction = np.array([road_map.lanes[int(i)].in_junction for i in range(len(road_map.lanes))])
             junction_merge = table.merge & (in_junction[table.lane] | in_junction[table.other])
-            object.__setattr__(table, "timed", table.timed | junction_merge)
-            object.__setattr__(table, "courtesy", table.courtesy & ~junction_merge)
+            table = table._replace(timed=table.timed | junction_merge, courtesy=table.courtesy & ~junction_merge)
         if ring is not None:  # entries join a ring: circulating vehicles keep their right of way
             ring_merge = ring[table.lane] | ring[table.other]
-            object.__setattr__(table, "courtesy", table.courtesy & ~ring_merge)
+            table = table._replace(courtesy=table.courtesy & ~ring_merge)
         if road_map is not None:
             stops = np.array([_stop_line(road_map.lanes[int(lane)], road_map.lanes[int(other)], float(s_in))
                               for lane, other, s_in in zip(table.lane, table.other, table.s_in, strict=True)])
@@ -109,7 +93,7 @@ class ApproachTable:
             # entry (the give-way line), and a vehicle that has entered clears the junction.
             junction = np.array([road_map.lanes[int(lane)].in_junction for lane in table.lane], dtype=bool)
             stops = np.where(junction, -STOP_MARGIN, stops)
-            object.__setattr__(table, "stop", np.minimum(table.stop, stops))
+            table = table._replace(stop=np.minimum(table.stop, stops))
         return table
 
 
@@ -125,169 +109,233 @@ def _stop_line(lane, other, s_in: float) -> float:
     return float(front[clear[0]]) if len(clear) else float(front[-1])
 
 
-def _positions(offset: np.ndarray, s: np.ndarray, length: np.ndarray, lanes: np.ndarray):
-    """Front and rear bumper (A, R) [m] of every agent along each lane of `lanes` (inf off its path)."""
-    base = -offset[:, lanes]  # where the agent's lane starts, seen from the start of each lane
-    front = base + (s + length / 2)[:, None]
-    rear = base + (s - length / 2)[:, None]
-    return front, rear
+@inline
+def can_stop(v: float, to_line: float) -> bool:
+    """Whether a vehicle at speed v [m/s], to_line [m] before its give-way line, can stop there braking at most
+    CLAIM_DECEL, or stands before it already."""
+    return (v * v < 2.0 * CLAIM_DECEL * maximum(to_line - STOP_MARGIN, -1e9)) or (
+        v < HELD_SPEED and to_line > -COMMITTED)
 
 
-def zone_state(t: Traffic, ctx: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For every agent and approach: its front bumper along the approach lane (A, R) [m] (-inf off its
-    path), its time to the zone along the other lane (A, R) [s] (inf off it), and whether it occupies the
-    zone from the other lane (A, R): inside it, or committed past its own give-way line."""
-    table, cfg = t.approaches, t.config
-    offset, s, v, length = ctx["offset"], ctx["s"], ctx["v"], ctx["length"]
-    front_own, _ = _positions(offset, s, length, table.lane)
-    front_own = np.where(np.isfinite(front_own), front_own, -np.inf)
-    front_o, rear_o = _positions(offset, s, length, table.other)
-    on_other = np.isfinite(front_o)
-    # An agent on both lanes' paths (the zone's lanes follow each other) comes the same way: not a conflict.
-    on_other &= ~np.isfinite(offset[:, table.lane])
-    # Inside the zone, or committed past the give-way line of a yielding approach (it will enter).
-    gives_way = (table.yields | table.tie)[table.partner]
-    entered = np.where(gives_way, np.minimum(table.o_in, table.other_stop + COMMITTED), table.o_in)  # (R,) [m]
-    inside = on_other & (front_o > entered[None]) & (rear_o < table.o_out[None])
-    before = on_other & ~inside & (front_o <= table.o_in[None])
-    speed = np.maximum(v, cfg.merge_speed)[:, None]
-    ttz = np.where(before, (table.o_in[None] - front_o) / speed, np.where(inside, 0.0, np.inf))
-    return front_own, ttz, inside
+@inline
+def zone_state(agents, vehicles, approaches, c):
+    """Every agent (A,) (`Agents`: the vehicles, then the ego, which never waits, is never courteous and is never
+    counted on to stop for a claim) at every approach (R,), for the agents on the approach's other lane (on_lane[r,
+    :n_on[r]]; the other entries are never read): inside the zone (or committed to it), its time to the zone [s],
+    held before its give-way line, able to stop there for a vehicle past its patience, claiming the zone itself,
+    physically in the zone, its time to its give-way line [s], waiting before the zone, its distance to the merge
+    point [m] and whether that is near (A, R); on_lane (R, A), n_on (R,); per agent (A,): how long it has waited
+    [s], whether it opens gaps (courteous), the headway [m] it needs behind a merging vehicle; the vehicles changing
+    lane (rows)."""
+    ap = approaches
+    s_a, v_a, len_a, offset_a = agents.s, agents.v, agents.length, agents.offset
+    n_a, n_r, nv = len(s_a), len(ap.lane), len(vehicles.v)
+    waited = np.zeros(n_a)  # [s]
+    courteous = np.zeros(n_a, dtype=np.bool_)
+    for a in range(min(n_a, nv)):
+        waited[a] = vehicles.stopped_time[a]
+        courteous[a] = vehicles.intention[a, MERGE] == YIELD
+    inside = np.empty((n_a, n_r), dtype=np.bool_)
+    ttz = np.empty((n_a, n_r))
+    held = np.empty((n_a, n_r), dtype=np.bool_)
+    stoppable = np.empty((n_a, n_r), dtype=np.bool_)
+    claiming = np.empty((n_a, n_r), dtype=np.bool_)
+    in_zone = np.empty((n_a, n_r), dtype=np.bool_)
+    t_line = np.empty((n_a, n_r))
+    waiting = np.empty((n_a, n_r), dtype=np.bool_)
+    d_merge = np.empty((n_a, n_r))
+    near = np.empty((n_a, n_r), dtype=np.bool_)
+    on_lane = np.empty((n_r, n_a), dtype=np.int64)
+    n_on = np.zeros(n_r, dtype=np.int64)
+    for a in range(n_a):
+        half = len_a[a] / 2
+        pace = maximum(v_a[a], c.merge_speed)
+        for r in range(n_r):
+            off_other = offset_a[a, ap.other[r]]
+            if not np.isfinite(off_other):
+                continue
+            on_lane[r, n_on[r]] = a
+            n_on[r] += 1
+            off_own = offset_a[a, ap.lane[r]]
+            base = -off_other
+            f_o = base + (s_a[a] + half)
+            rear_o = base + (s_a[a] - half)
+            # an agent on both lanes' paths (the zone's lanes follow each other) comes the same way: no conflict
+            on_other = np.isfinite(f_o) and not np.isfinite(off_own)
+            partner = ap.partner[r]
+            other_stop = ap.stop[partner]
+            # inside the zone, or committed past the give-way line of a yielding approach (it will enter)
+            entered = minimum(ap.o_in[r], other_stop + COMMITTED) if (ap.yields[partner] or ap.tie[partner]) \
+                else ap.o_in[r]
+            ins = on_other and f_o > entered and rear_o < ap.o_out[r]
+            inside[a, r] = ins
+            before = on_other and not ins and f_o <= ap.o_in[r]
+            if before:
+                ttz[a, r] = (ap.o_in[r] - f_o) / pace
+            elif ins:
+                ttz[a, r] = 0.0
+            else:
+                ttz[a, r] = np.inf
+            # A priority agent standing before its own give-way line (waiting there, or queued behind one that
+            # waits) will see the follower committed when it gets there: no conflict; unless it has stood first
+            # at the line for TURN_WAIT already: then it is its turn (no stream of yielders starves it).
+            before_line = v_a[a] < HELD_SPEED and f_o <= other_stop + COMMITTED
+            at_line = other_stop - f_o < AT_LINE
+            held[a, r] = before_line and not (at_line and waited[a] >= TURN_WAIT)
+            to_own = other_stop - f_o
+            if not np.isfinite(to_own):
+                to_own = -np.inf
+            stoppable[a, r] = a != nv and can_stop(v_a[a], to_own)
+            claiming[a, r] = before_line and at_line and waited[a] >= c.impatience and ap.yields[partner]
+            in_zone[a, r] = ins and f_o > ap.o_in[r]
+            t_line[a, r] = maximum(other_stop - f_o, 0.0) / pace
+            waiting[a, r] = np.isfinite(f_o) and not ins and f_o <= ap.o_in[r] and not np.isfinite(off_own)
+            d = ap.o_out[r] - f_o
+            d_merge[a, r] = d
+            near[a, r] = np.isfinite(d) and d > -len_a[a] and d < MERGE_RANGE
+    changing = np.empty(nv, dtype=np.int64)  # vehicles moving over between lanes
+    n_changing = 0
+    for j in range(nv):
+        if vehicles.active[j] and vehicles.lc_dist[j] < c.lane_change_length:
+            changing[n_changing] = j
+            n_changing += 1
+    needed = np.empty(n_a)  # [m] the headway of an agent behind a merging follower
+    for a in range(n_a):
+        # one standing still only needs the follower not to touch it (the follower moves away from it, and it
+        # may be standing for the follower: waiting for it would never end)
+        needed[a] = c.min_gap + v_a[a] * c.critical_gap_merge if v_a[a] >= HELD_SPEED else STANDING_ROOM
+    return (inside, ttz, held, stoppable, claiming, in_zone, t_line, waiting, d_merge, near, on_lane, n_on, waited,
+            courteous, needed, changing[:n_changing])
 
 
-def conflict_columns(t: Traffic, ctx: dict, f: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Gap columns (F, 2R) [m], their obstacle speeds (F, 2R) [m/s] and minimum gaps (2R,) [m] for the
-    followers `f` (rows of the agents in `ctx`), and the distance (F,) [m] to the nearest give-way line
-    still ahead (inf if none: the follower approaches it slowly enough to stop).
+@inline
+def zone_stops(followers, agents, vehicles, approaches, slot_pos, c):
+    """Every follower (`Followers`, rows of `agents`) at every approach on its path: its stop line [m] (inf: none), its
+    virtual leader's gap [m] and speed [m/s] in a merge, as pairs in follower then approach order (those of follower
+    f: start[f] to start[f + 1]); and per follower, the distance [m] to its nearest give-way line where it gives way
+    and has not committed (inf: none, then it need not slow down for one).
 
-    Crossings: stop at the give-way line while a priority agent would reach the zone less than the
-    critical gap after the follower has cleared it (on a tie: while another agent gets there first); stop
-    at the zone's edge while an agent from the other lane occupies it.
-    Merges (a zipper over the distance to the merge point): agents of the other lane nearer the merge
-    point are virtual leaders of the yielding side, and of the priority side once committed (or, for a
-    courteous vehicle, within `courtesy_range`); a yielding vehicle waits at its give-way line while a
-    priority agent behind it in that order would come closer than its headway."""
-    table, cfg = t.approaches, t.config
-    rows = f["rows"]
-    n_f, n_r = len(rows), len(table)
-    offset, s, v, length = ctx["offset"], ctx["s"], ctx["v"], ctx["length"]
-    front_own, ttz, inside = zone_state(t, ctx)
-    front_o, _ = _positions(offset, s, length, table.other)
-    # Only the (follower, approach) pairs on the follower's path matter: P pairs, each against every agent.
-    pf, pr = np.nonzero(np.isfinite(front_own[rows]))  # (P,) follower index, approach row
-    me = rows[pf]  # (P,) the follower's agent row
-    others = np.arange(len(s))[None] != me[:, None]  # (P, A)
-    tr = lambda a: a[:, pr].T  # noqa: E731  (A, R) -> (P, A)
-    front_me = front_own[me, pr]  # (P,) [m]
-    timed, gives_way = table.timed[pr], (table.yields | table.tie)[pr]
-
-    # --- crossings (and merges inside junctions) ---------------------------------------------------------
-    v_me, length_me = np.maximum(v[me], 0.0), length[me]
-    to_clear = np.maximum(table.s_out[pr] + length_me - front_me, 0.0)
-    t_clear = (np.sqrt(v_me**2 + 2 * CLEAR_ACCEL * to_clear) - v_me) / CLEAR_ACCEL  # (P,) [s]
-    # A priority agent standing before its own give-way line (waiting there, or queued behind one that
-    # waits) will see the follower committed when it gets there: no conflict; unless it has stood first at
-    # the line for TURN_WAIT already: then it is its turn (no stream of yielders starves it).
-    before_line = (v[:, None] < HELD_SPEED) & (front_o <= table.other_stop[None] + COMMITTED)  # (A, R)
-    at_line = table.other_stop[None] - front_o < AT_LINE
-    waited_all = np.append(t.stopped_time, 0.0)  # (A,) [s] how long each agent has waited (the ego: never)
-    waited_long = waited_all[:, None] >= TURN_WAIT  # (A, 1)
-    held = before_line & ~(at_line & waited_long)
-    # Impatience: the critical gap shrinks to zero over `impatience` seconds of waiting (the gap must still
-    # let the follower clear the zone before the priority agent arrives).
-    waited = waited_all[me]  # (P,) [s]
-    critical = cfg.critical_gap_crossing * np.maximum(0.0, 1.0 - waited / cfg.impatience)
-    # Past its patience a vehicle standing at its give-way line claims the zone: priority vehicles that can
-    # still stop before their own line (braking at most CLAIM_DECEL) or stand before it stop there for it,
-    # and it no longer waits for them; never the ego, whose driver the traffic cannot count on.
-    to_own_line = table.other_stop[None] - front_o  # (A, R) [m] (-inf off the other lane)
-    to_own_line = np.where(np.isfinite(to_own_line), to_own_line, -np.inf)
-    can_stop = _can_stop(v[:, None], to_own_line)  # (A, R)
-    can_stop[t.nv] = False
-    patient = waited_all[:, None] >= cfg.impatience  # (A, 1)
-    claiming = before_line & at_line & patient & table.yields[table.partner][None]  # (A, R) on the other lane
-    me_stop = table.stop[pr] - front_me  # (P,) [m] to the follower's own give-way line
-    forcing = ((waited >= cfg.impatience) & (v_me < HELD_SPEED) & (me_stop < AT_LINE) & (me_stop >= -COMMITTED)
-               & table.yields[pr])  # (P,) the follower claims this zone (as `claiming` sees it)
-    stoppable = forcing[:, None] & tr(can_stop)  # (P, A)
-    soon = (others & ~tr(held) & ~stoppable & (tr(ttz) < (t_clear + critical)[:, None])).any(axis=1)  # (P,)
-    claimed = (others & tr(claiming)).any(axis=1) & ~table.yields[pr] & ~table.tie[pr] & _can_stop(v_me, me_stop)
-    # Occupied: someone from the other lane is committed to the zone (past its give-way line) or in it. A
-    # vehicle not yet committed waits at its give-way line for either; a committed one stops at the zone's
-    # edge only for a vehicle physically in it (committed vehicles never wait for each other's promises,
-    # which could go round in a circle).
-    in_zone = inside & (front_o > table.o_in[None])  # (A, R) physically in it
-    promised = (others & tr(inside)).any(axis=1)  # (P,)
-    # A vehicle moving over between lanes is on neither lane's path near the zone: judge it by distance.
-    changing = np.flatnonzero(t.active & (t.lc_dist < cfg.lane_change_length))
-    if len(changing):
-        xy = t._current_pos[t.vehicle_slots[changing], :2]
-        point = table.point[pr]  # (P, 2)
-        near_point = np.hypot(xy[None, :, 0] - point[:, None, 0], xy[None, :, 1] - point[:, None, 1])
-        promised |= ((changing[None] != me[:, None]) & (near_point < CHANGING_RADIUS)).any(axis=1)
-    occupied = (others & tr(in_zone)).any(axis=1)
-    # Ties: whoever reaches its give-way line sooner goes first (then the lower row): a strict order, so
-    # waiting never goes round in a circle.
-    pace = np.maximum(v, cfg.merge_speed)
-    t_line_me = np.maximum(table.stop[pr] - front_me, 0.0) / pace[me]  # (P,) [s]
-    t_line_o = np.maximum(table.other_stop[None] - front_o, 0.0) / pace[:, None]  # (A, R) along the other
-    waiting_o = np.isfinite(front_o) & ~inside & (front_o <= table.o_in[None]) & ~np.isfinite(offset[:, table.lane])
-    # ... and of those at their lines, whoever has waited longer, then the lower row.
-    longer = (waited_all[None] > waited[:, None]) | (
-        (waited_all[None] == waited[:, None]) & (np.arange(len(s))[None] < me[:, None]))
-    earlier = (tr(t_line_o) < t_line_me[:, None]) | ((tr(t_line_o) == t_line_me[:, None]) & longer)
-    first = (others & tr(waiting_o) & earlier).any(axis=1)  # another agent goes first
-    wait_timed = timed & ((table.yields[pr] & soon) | (table.tie[pr] & first))
-
-    # --- merges: committed agents ahead are virtual leaders; outside junctions, a zipper ------------------
-    d_me = table.s_out[pr] - front_me  # (P,) [m] my front bumper to the merge point
-    d_them = table.o_out[None] - front_o  # (A, R) [m] theirs (inf off the other lane)
-    near = np.isfinite(d_them) & (d_them > -length[:, None]) & (d_them < MERGE_RANGE)  # (A, R)
-    courteous = f["courteous"][pf] & table.courtesy[pr] & (d_me < cfg.courtesy_range)  # (P,)
-    zipper = ~timed & (gives_way | courteous)  # (P,)
-    follows = tr(inside) | zipper[:, None]  # (P, A): committed agents ahead are leaders in every merge
-    d_them_p = tr(d_them)
-    ahead = others & table.merge[pr][:, None] & tr(near) & (d_them_p < d_me[:, None]) & follows
-    spacing = np.where(ahead, d_me[:, None] - np.where(ahead, d_them_p, 0.0) - length[None], np.inf)  # (P, A)
-    leader_gap = spacing.min(axis=1) if len(s) else np.full(len(pf), np.inf)
-    leader_speed = v[np.argmin(spacing, axis=1)] if len(s) else np.zeros(len(pf))
-    behind = others & ~timed[:, None] & tr(near) & (d_them_p >= d_me[:, None])
-    room = np.where(behind, d_them_p - d_me[:, None] - length_me[:, None], np.inf)  # (P, A) [m]
-    # [m] the agent behind's headway; one standing still only needs the follower not to touch it (the follower
-    # moves away from it, and it may be standing for the follower: waiting for it would never end)
-    needed = np.where(v >= HELD_SPEED, cfg.min_gap + v * cfg.critical_gap_merge, STANDING_ROOM)[None]  # (1, A)
-    # Only the nearest agent behind matters (the follower's follower after the merge; the rest queue behind
-    # it), and not if it is courteous: it keeps its distance to the follower, a virtual leader of its own.
-    nearest = np.argmin(room, axis=1) if len(s) else np.zeros(len(pf), dtype=np.int64)  # (P,)
-    room_nearest = room[np.arange(len(pf)), nearest] if len(s) else np.full(len(pf), np.inf)
-    letting_in = courteous_agents(t, ctx)[nearest] & table.courtesy[pr]
-    cut_off = np.isfinite(room_nearest) & ~letting_in & (room_nearest < needed[0, nearest])  # (P,)
-    wait_merge = ~timed & table.yields[pr] & cut_off
-
-    # --- stop lines, back to (F, R) columns ------------------------------------------------------------------
-    stop = table.stop[pr] - front_me  # (P,) [m] to the give-way line
-    holding = stop > -COMMITTED  # not yet committed
-    edge = table.s_in[pr] - EDGE_MARGIN - front_me  # (P,) [m] to the zone's edge
-    stops = np.minimum(np.where((wait_timed | wait_merge | (timed & (promised | claimed))) & holding, stop, np.inf),
-                       np.where(timed & occupied & (edge > -COMMITTED), edge, np.inf))
-    gap = np.full((n_f, 2 * n_r), np.inf)
-    lead = np.zeros((n_f, 2 * n_r))
-    gap[pf, pr], gap[pf, n_r + pr], lead[pf, n_r + pr] = stops, leader_gap, leader_speed
-    to_line = np.full(n_f, np.inf)
-    np.minimum.at(to_line, pf, np.where(gives_way & holding, stop, np.inf))
-    s0 = np.concatenate([np.full(n_r, cfg.stop_gap), np.full(n_r, cfg.min_gap)])
-    return gap, lead, s0, to_line
+    Crossings: stop at the give-way line while a priority agent would reach the zone less than the critical gap
+    after the follower has cleared it (on a tie: while another agent gets there first); stop at the zone's edge
+    while an agent from the other lane occupies it. Merges (a zipper over the distance to the merge point): agents
+    of the other lane nearer the merge point are virtual leaders of the yielding side, and of the priority side once
+    committed (or, for a courteous vehicle, within `courtesy_range`); a yielding vehicle waits at its give-way line
+    while a priority agent behind it in that order would come closer than its headway."""
+    (inside, ttz, held, stoppable_a, claiming, in_zone, t_line, waiting, d_merge, near, on_lane, n_on, waited_a,
+     courteous_a, needed, changing) = zone_state(agents, vehicles, approaches, c)
+    ap = approaches
+    ap_lane, ap_s_in, ap_s_out, ap_stop, ap_point = ap.lane, ap.s_in, ap.s_out, ap.stop, ap.point
+    ap_timed, ap_yields, ap_tie, ap_merge, ap_courtesy = ap.timed, ap.yields, ap.tie, ap.merge, ap.courtesy
+    s_a, v_a, len_a, offset_a = agents.s, agents.v, agents.length, agents.offset
+    rows, courteous_f, slot = followers.row, followers.courteous, vehicles.slot
+    n_f, n_r = len(rows), len(ap_lane)
+    start = np.zeros(n_f + 1, dtype=np.int64)
+    for f in range(n_f):
+        start[f + 1] = start[f]
+        for r in range(n_r):
+            start[f + 1] += np.isfinite(offset_a[rows[f], ap_lane[r]])
+    line, leader_gaps, leader_speeds = np.empty(start[n_f]), np.empty(start[n_f]), np.empty(start[n_f])
+    to_give_way = np.full(n_f, np.inf)
+    p = 0
+    for f in range(n_f):
+        row = rows[f]
+        for r in range(n_r):
+            if not np.isfinite(offset_a[row, ap_lane[r]]):  # not on the follower's path
+                continue
+            front_me = -offset_a[row, ap_lane[r]] + (s_a[row] + len_a[row] / 2)
+            timed, yields, tie = ap_timed[r], ap_yields[r], ap_tie[r]
+            gives_way = yields or tie
+            v_me, length_me = maximum(v_a[row], 0.0), len_a[row]
+            to_clear = maximum(ap_s_out[r] + length_me - front_me, 0.0)
+            t_clear = (np.sqrt(v_me * v_me + 2 * CLEAR_ACCEL * to_clear) - v_me) / CLEAR_ACCEL  # [s]
+            # Impatience: the critical gap shrinks to zero over `impatience` seconds of waiting (the gap must still
+            # let the follower clear the zone before the priority agent arrives).
+            waited = waited_a[row]
+            critical = c.critical_gap_crossing * maximum(0.0, 1.0 - waited / c.impatience)
+            # Past its patience a vehicle standing at its give-way line claims the zone: priority vehicles that can
+            # still stop before their own line (braking at most CLAIM_DECEL) or stand before it stop there for it,
+            # and it no longer waits for them; never the ego, whose driver the traffic cannot count on.
+            me_stop = ap_stop[r] - front_me  # [m] to the follower's own give-way line
+            forcing = (waited >= c.impatience and v_me < HELD_SPEED and me_stop < AT_LINE and me_stop >= -COMMITTED
+                       and yields)
+            # --- crossings (and merges inside junctions) ---------------------------------------------------------
+            soon = claimed_any = promised = occupied = first = False
+            t_line_me = maximum(ap_stop[r] - front_me, 0.0) / maximum(v_a[row], c.merge_speed)
+            for k in range(n_on[r]):  # the agents on the other lane (the others neither conflict nor lead here)
+                a = on_lane[r, k]
+                if a == row:
+                    continue
+                stoppable = forcing and stoppable_a[a, r]
+                if not held[a, r] and not stoppable and ttz[a, r] < t_clear + critical:
+                    soon = True
+                if claiming[a, r]:
+                    claimed_any = True
+                # Occupied: someone from the other lane is committed to the zone (past its give-way line) or in it.
+                # A vehicle not yet committed waits at its give-way line for either; a committed one stops at the
+                # zone's edge only for a vehicle physically in it (committed vehicles never wait for each other's
+                # promises, which could go round in a circle).
+                if inside[a, r]:
+                    promised = True
+                if in_zone[a, r]:
+                    occupied = True
+                # Ties: whoever reaches its give-way line sooner goes first, then whoever has waited longer, then the
+                # lower row: a strict order, so waiting never goes round in a circle.
+                if waiting[a, r]:
+                    longer = waited_a[a] > waited or (waited_a[a] == waited and a < row)
+                    if t_line[a, r] < t_line_me or (t_line[a, r] == t_line_me and longer):
+                        first = True
+            claimed = claimed_any and not yields and not tie and can_stop(v_me, me_stop)
+            for j in changing:  # a vehicle moving over between lanes is on neither lane's path near the zone:
+                if j != row and np.hypot(slot_pos[slot[j], 0] - ap_point[r, 0],  # judge it by distance
+                                         slot_pos[slot[j], 1] - ap_point[r, 1]) < CHANGING_RADIUS:
+                    promised = True
+            wait_timed = timed and ((yields and soon) or (tie and first))
+            # --- merges: committed agents ahead are virtual leaders; outside junctions, a zipper -----------------
+            d_me = ap_s_out[r] - front_me  # [m] my front bumper to the merge point
+            courteous = courteous_f[f] and ap_courtesy[r] and d_me < c.courtesy_range
+            zipper = not timed and (gives_way or courteous)
+            leader_gap, leader = np.inf, 0
+            room_nearest, nearest = np.inf, 0
+            for k in range(n_on[r]):
+                a = on_lane[r, k]
+                if a == row or not near[a, r]:
+                    continue
+                d = d_merge[a, r]
+                if ap_merge[r] and d < d_me and (inside[a, r] or zipper):
+                    spacing = d_me - d - len_a[a]
+                    if spacing < leader_gap:
+                        leader_gap, leader = spacing, a
+                if not timed and d >= d_me:
+                    room = d - d_me - length_me
+                    if room < room_nearest:
+                        room_nearest, nearest = room, a
+            # Only the nearest agent behind matters (the follower's follower after the merge; the rest queue behind
+            # it), and not if it is courteous: it keeps its distance to the follower, a virtual leader of its own.
+            letting_in = courteous_a[nearest] and ap_courtesy[r]
+            cut_off = np.isfinite(room_nearest) and not letting_in and room_nearest < needed[nearest]
+            wait_merge = not timed and yields and cut_off
+            # --- stop lines -------------------------------------------------------------------------------------
+            holding = me_stop > -COMMITTED  # not yet committed
+            edge = ap_s_in[r] - EDGE_MARGIN - front_me  # [m] to the zone's edge
+            line_gap = np.inf
+            if (wait_timed or wait_merge or (timed and (promised or claimed))) and holding:
+                line_gap = me_stop
+            if timed and occupied and edge > -COMMITTED:
+                line_gap = minimum(line_gap, edge)
+            line[p], leader_gaps[p], leader_speeds[p] = line_gap, leader_gap, v_a[leader]
+            to_give_way[f] = minimum(to_give_way[f], me_stop if gives_way and holding else np.inf)
+            p += 1
+    return start, line, leader_gaps, leader_speeds, to_give_way
 
 
-def _can_stop(v: np.ndarray, to_line: np.ndarray) -> np.ndarray:
-    """Whether a vehicle at speed v [m/s], to_line [m] before its give-way line, can stop there braking at
-    most CLAIM_DECEL, or stands before it already."""
-    return (v * v < 2.0 * CLAIM_DECEL * np.maximum(to_line - STOP_MARGIN, -1e9)) | (
-        (v < HELD_SPEED) & (to_line > -COMMITTED))
-
-
-def courteous_agents(t: Traffic, ctx: dict) -> np.ndarray:
-    """(A,) agents that open gaps at merges: vehicles with merge intention YIELD (never the ego)."""
-    out = np.zeros(len(ctx["s"]), dtype=bool)
-    out[: t.nv] = t.intention[:, MERGE] == YIELD
-    return out
+@jit
+def ego_give_way(followers, agents, vehicles, approaches, slot_pos, c):
+    """What `zone_stops` asks of one follower (the ego, `Traffic.give_way`): the nearest stop line [m] before a zone
+    (inf: none), and in a merge its nearest virtual leader's gap [m] (inf: none) and speed [m/s]."""
+    start, line, leader_gaps, leader_speeds, _ = zone_stops(followers, agents, vehicles, approaches, slot_pos, c)
+    stop, gap, speed = np.inf, np.inf, 0.0
+    for k in range(start[0], start[1]):
+        stop = minimum(stop, line[k])
+        if leader_gaps[k] < gap:
+            gap, speed = leader_gaps[k], leader_speeds[k]
+    return stop, gap, speed

@@ -1,297 +1,270 @@
-"""Following: every obstacle of every vehicle (path leaders, the corridor ahead, crosswalk and merge
-stop lines) as columns of one gap table, and the IDM acceleration with a safety cap over it."""
+"""Following: the IDM acceleration of every follower against the most constraining of its obstacles (path
+leaders, the corridor ahead, crosswalk and merge stop lines, conflict zones, the end of an ending lane), with a
+safety cap.
+
+Every obstacle is a column of a follower's gap table: a gap [m] (bumper to obstacle), the obstacle's speed [m/s]
+and the minimum gap s0 [m]. `gap_summary` walks every (follower, obstacle) pair once and keeps only what the IDM
+needs of the table (`_fold`): the smallest gap, the strongest interaction (s*/gap)^2 and the least stopping room.
+"""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import math
 
 import numpy as np
 
-from mjdrive.traffic import kernels, state_kernels
-from mjdrive.traffic.conflicts import (
-    AT_LINE,
-    CHANGING_RADIUS,
-    CLAIM_DECEL,
-    CLEAR_ACCEL,
-    COMMITTED,
-    EDGE_MARGIN,
-    HELD_SPEED,
-    MERGE_RANGE,
-    STANDING_ROOM,
-    STOP_MARGIN,
-    TURN_WAIT,
-    ApproachTable,
-    conflict_columns,
-)
-from mjdrive.traffic.intentions import MERGE, YIELD
-from mjdrive.traffic.kernels import KERNELS
-from mjdrive.traffic.merges import merge_conflicts
-from mjdrive.traffic.pedestrians import occupied_crossings
+from mjdrive.compiled import inline, jit, maximum, minimum
+from mjdrive.traffic.conflicts import zone_stops
+from mjdrive.traffic.lanes import curve_speed
+from mjdrive.traffic.merges import merge_state, merge_stops
+from mjdrive.traffic.pedestrians import BAND_MARGIN, SLOW_LEADER, crosswalk_stop, occupied_crossings
+from mjdrive.traffic.state import Agents, Followers
 
-if TYPE_CHECKING:
-    from mjdrive.traffic.model import Traffic
+INF = np.inf
+LINE_DECEL = 1.5  # [m/s^2] followers approach yield and give-way lines slowly enough to stop there at this braking
+MIN_DESIRED_SPEED = 0.1  # [m/s] IDM's free-road term divides by the desired speed, at least this
+MIN_GAP_DIVISOR = 0.05  # [m] ... and its interaction term by the gap, at least this
 
 
-def follower_table(t: Traffic, ctx: dict) -> dict:
-    """The vehicles as followers for `_accelerations`."""
-    nv = t.nv
-    vs = t.vehicle_slots
-    return {"rows": t._vehicle_rows, "path": ctx["path"][:nv], "offset": ctx["offset"][:nv], "s": t.s,
-            "v": t.v, "v0": t.v0, "length": t.length, "width": t.width, "a": t.a_max,
-            "b": t.b_comf, "T": t.headway, "xy": t._current_pos[vs, :2],
-            "yaw": t._current_yaw[vs], "accept_gap": t.config.accept_gap,
-            "courteous": t.intention[:, MERGE] == YIELD}  # `courteous_agents`' vehicle rows
+def accelerations(followers: Followers, agents: Agents, vehicles, pedestrians, now, half_size: np.ndarray,
+                  ego: np.ndarray, tables, c, accept_gap: float) -> tuple[np.ndarray, np.ndarray]:
+    """IDM accelerations [m/s^2] of `followers` (rows of `agents`) and their smallest gaps [m] (inf where none), capped
+    so that each can still stop within its room whatever the obstacle does (`gap_table`, `idm`)."""
+    lead_gap, interaction, room, v0, ratio = gap_table(followers, agents, vehicles, pedestrians, now, half_size, ego,
+                                                       tables, c, accept_gap)
+    ratio4 = ratio**4  # numpy's power (the numbers every trajectory was recorded with; not libm's pow)
+    return idm(followers.a_max, followers.v, v0, ratio4, interaction, room, c.decision_period, c.max_decel), lead_gap
 
 
-def accelerations(t: Traffic, f: dict, ctx: dict) -> np.ndarray:
-    """IDM accelerations [m/s^2] of followers `f` (dict of arrays, see `_follower_table`).
-
-    Every obstacle of every follower is a column of one (F, columns) table of gaps [m] (bumper to
-    obstacle, inf where none), obstacle speeds [m/s] and minimum gaps s0 [m]: path leaders, the corridor,
-    crosswalk stop lines, merge stop lines. IDM takes the most constraining one. The table is reduced to
-    what IDM needs of it by `gap_summary` (numpy), or by the compiled kernel with the same numbers
-    (`kernels.gap_summary`, when numba is installed)."""
-    m = t.map
-    lane0 = np.maximum(f["path"][:, 0], 0)
-    vcurve, kappa = m.curve_speed(lane0, f["s"])
-    own = f["a"] is t.a_max and f["b"] is t.b_comf  # the vehicles' own IDM parameters: 2 sqrt(a b) computed once
-    den = t._den if own else 2.0 * np.sqrt(f["a"] * f["b"])  # IDM's 2 sqrt(a b) [m/s^2]
-    summary = gap_summary_kernel if KERNELS else gap_summary
-    lead_gap, interaction, room, to_give_way = summary(t, f, ctx, kappa, den)
-    if len(f["rows"]) == t.nv:
-        t.lead_gap = lead_gap
-    if not KERNELS:
-        return idm(t, f, ctx, vcurve, interaction, room, to_give_way)
-    n_y = len(m.yield_lane) if t.approaches is None else 0
-    cfg, v = t.config, f["v"]
-    v0, ratio = kernels.desired_speed(f["path"], f["offset"], f["s"], f["length"], f["v0"], vcurve, to_give_way,
-                                      m.length, m.entry_speed, m.speed_limit, m.anticipation, m.yield_lane[:n_y],
-                                      m.yield_stop[:n_y], cfg.yield_speed, v)
-    ratio4 = ratio**4  # numpy's power of (v / max(v0, 0.1)), as in `idm`
-    return kernels.idm_accel(f["a"], v, v0, ratio4, interaction, room, cfg.decision_period, cfg.max_decel)
+@jit
+def gap_table(followers, agents, vehicles, pedestrians, now, half_size, ego, tables, c, accept_gap):
+    """Every follower's gap table reduced (`gap_summary`: the smallest gap [m], the largest interaction term, the least
+    room [m]) and its desired speed [m/s] with its speed's ratio to it (`desired_speed`), among the corridor's
+    obstacles now (`obstacles_now`; ego: its box, or empty) and the agents on the lane graph. `tables`: the traffic's
+    `MapTables`; c: its `Constants`; accept_gap [s]: at roundabout merges."""
+    obstacles = obstacles_now(vehicles, pedestrians.slot, now, half_size, ego)
+    vcurve, kappa = curve_speed(tables.polylines, np.maximum(followers.path[:, 0], 0), followers.s)
+    lead_gap, interaction, room, to_give_way = gap_summary(followers, agents, obstacles, vehicles, pedestrians,
+                                                           now.pos, kappa, tables, c, accept_gap)
+    v0, ratio = desired_speed(followers, vcurve, to_give_way, tables.lanes, tables.merges, c.yield_speed)
+    return lead_gap, interaction, room, v0, ratio
 
 
-def gap_summary(t: Traffic, f: dict, ctx: dict, kappa: np.ndarray, den: np.ndarray):
-    """Every follower's gap table (F, columns) reduced to: the smallest gap [m], the largest IDM interaction
-    term (s*/gap)^2, the least stopping room [m] (gap - s0 + v_lead^2 / 2 max_decel) and the distance [m]
-    to its nearest give-way line still ahead (inf where none)."""
-    m, cfg = t.map, t.config
-    path, offset, s, v = f["path"], f["offset"], f["s"], f["v"]
-    rows, length = f["rows"], f["length"]
-    front = s + length / 2
-    xy_o, yaw_o, v_o, hl_o, hw_o, idx_o = obstacles(t)
-    lane_a = ctx["lane"]
-    n_y = len(m.yield_lane) if t.approaches is None else 0  # urban rules: conflict zones instead
-    n_a, n_o, n_k = len(lane_a), len(xy_o), len(m.cross_lane)
-    c1, c2, c3, c4 = n_a, n_a + n_o, n_a + n_o + n_k, n_a + n_o + n_k + n_y
-    gap = np.full((len(s), c4 + n_y), np.inf)
-    lead = np.zeros_like(gap)
-    s0 = np.full(gap.shape[1], cfg.stop_gap)
-    s0[:c2] = cfg.min_gap
-
-    # 1. Leaders along the planned path (vehicles and the ego).
-    pos = offset[:, lane_a] + ctx["s"][None]  # (F, A) [m] from the start of the follower's lane
-    a_idx = np.arange(n_a)
-    ahead = (pos > s[:, None]) | ((pos == s[:, None]) & (a_idx[None] > rows[:, None]))
-    ahead &= a_idx[None] != rows[:, None]
-    gap[:, :c1] = np.where(ahead, pos - front[:, None] - ctx["length"][None] / 2, np.inf)
-    lead[:, :c1] = ctx["v"][None]
-
-    # 2. Anything in the corridor ahead (curvature-corrected): vehicles, the ego, pedestrians.
-    c, sn = np.cos(f["yaw"])[:, None], np.sin(f["yaw"])[:, None]
-    co, so = np.cos(yaw_o)[None], np.sin(yaw_o)[None]
-    rx = xy_o[None, :, 0] - f["xy"][:, None, 0]
-    ry = xy_o[None, :, 1] - f["xy"][:, None, 1]
-    dx = c * rx + sn * ry
-    dy = -sn * rx + c * ry - 0.5 * kappa[:, None] * dx * dx
-    cos_d = co * c + so * sn  # cos and sin of the obstacle's yaw relative to the follower
-    cd, sd = np.abs(cos_d), np.abs(so * c - co * sn)
-    inside = (dx > 0) & (dx < cfg.corridor_range) & (idx_o[None] != rows[:, None])
-    inside &= np.abs(dy) < (f["width"] / 2 + cfg.corridor_margin)[:, None] + sd * hl_o[None] + cd * hw_o[None]
-    gap[:, c1:c2] = np.where(inside, dx - (length / 2)[:, None] - cd * hl_o[None] - sd * hw_o[None], np.inf)
-    lead[:, c1:c2] = v_o[None] * cos_d
-
-    # 3. Crosswalk stop lines where a pedestrian walks in the lane's band, or where the queue ahead
-    #    leaves no room beyond the crosswalk (keep it clear).
-    if n_k:
-        base = offset[:, m.cross_lane]  # (F, K)
-        stop = base + (m.cross_s[:, 0] - cfg.crosswalk_margin)[None] - front[:, None]
-        leader = np.argmin(gap[:, :c1], axis=1)
-        path_gap = np.minimum(gap[np.arange(len(s)), leader], 1e9)
-        slow_leader = (path_gap < 1e9) & (ctx["v"][leader] < 3.0)
-        beyond = stop + (m.cross_s[:, 1] - m.cross_s[:, 0] + 2 * cfg.crosswalk_margin)[None]
-        no_room = slow_leader[:, None] & (path_gap[:, None] - beyond < (length + cfg.min_gap)[:, None])
-        blocked = (no_room | occupied_crossings(t)[None]) if t.np_ else no_room
-        gap[:, c2:c3] = np.where(blocked & (stop > -0.5), stop, np.inf)  # at / past the line: go on
-
-    # 4. Merge stop lines while a priority vehicle (or the ego) would reach the merge point too soon.
-    if n_y:
-        conflict = merge_conflicts(t, ctx, f["accept_gap"])  # (Y,)
-        if conflict.any():
-            stop = offset[:, m.yield_lane] + m.yield_stop[None] - front[:, None]
-            holding = (stop > -0.5) | ((stop > -1.0) & (v < 1.0)[:, None])  # not yet committed
-            gap[:, c3:c4] = np.where(conflict[None] & holding, stop, np.inf)
-        # ... and circulating vehicles let in an entering vehicle committed past its yield line.
-        on_entry = ctx["lane"][:, None] == m.yield_lane[None]  # (A, Y)
-        past = (ctx["s"] + ctx["length"] / 2)[:, None] - m.yield_stop[None]
-        committed = (on_entry & ((past > 1.0) | ((past > 0.5) & (ctx["v"] >= 1.0)[:, None]))).any(axis=0)
-        if committed.any():
-            to_merge = offset[:, m.yield_merge]  # (F, Y)
-            through = offset[:, m.yield_lane] < np.inf
-            stop = to_merge - cfg.merge_clearance - front[:, None]
-            keep_out = committed[None] & ~through & (to_merge > 0) & (stop > -0.5)
-            gap[:, c4:] = np.where(keep_out, stop, np.inf)
-
-    # 5. Urban rules: stop lines of conflict zones not to be entered now, and gaps opened at merges.
-    to_give_way = np.full(len(s), np.inf)  # [m] to the nearest give-way line of a conflict zone
-    if t.approaches is not None and len(t.approaches):
-        extra_gap, extra_lead, extra_s0, to_give_way = conflict_columns(t, ctx, f)
-        used = np.isfinite(extra_gap).any(axis=0)  # most approaches are on nobody's path right now
-        extra_gap, extra_lead, extra_s0 = extra_gap[:, used], extra_lead[:, used], extra_s0[used]
-        gap = np.concatenate([gap, extra_gap], axis=1)
-        lead = np.concatenate([lead, extra_lead], axis=1)
-        s0 = np.concatenate([s0, extra_s0])
-    if t.urban:  # the end of an ending lane (an on-ramp) is a wall until the vehicle has moved over
-        k_end = (path >= 0).sum(axis=1) - 1  # the last lane of the planned path
-        last = path[np.arange(len(s)), np.maximum(k_end, 0)]
-        ends = m.ending[np.maximum(last, 0)] & (last >= 0)
-        to_end = offset[np.arange(len(s)), np.maximum(last, 0)] + m.length[np.maximum(last, 0)] - front
-        gap = np.concatenate([gap, np.where(ends, to_end, np.inf)[:, None]], axis=1)
-        lead = np.concatenate([lead, np.zeros((len(s), 1))], axis=1)
-        s0 = np.concatenate([s0, [cfg.stop_gap]])
-
-    finite = gap < np.inf
-    s_star = s0[None] + np.maximum(0.0, (v * f["T"])[:, None] + v[:, None] * (v[:, None] - lead) / den[:, None])
-    interaction = np.where(finite, (s_star / np.maximum(gap, 0.05)) ** 2, 0.0).max(axis=1)
-    v_lead = np.maximum(lead, 0.0)
-    room = np.where(finite, gap - s0[None] + v_lead * v_lead / (2 * cfg.max_decel), np.inf).min(axis=1)
-    return gap.min(axis=1), interaction, room, to_give_way
-
-
-def gap_summary_kernel(t: Traffic, f: dict, ctx: dict, kappa: np.ndarray, den: np.ndarray):
-    """`gap_summary` by the compiled kernel (`kernels.gap_summary`): the same four arrays, bit for bit."""
-    n_k, n_y = len(t.map.cross_lane), (len(t.map.yield_lane) if t.approaches is None else 0)
-    xy_o, yaw_o, v_o, hl_o, hw_o, idx_o = obstacles(t)
-    blocked = occupied_crossings(t) if (t.np_ and n_k) else np.zeros(n_k, dtype=bool)
-    conflict, committed = _merge_state(t, ctx, f["accept_gap"]) if n_y else (_NO_BOOL, _NO_BOOL)
-    c = np.ascontiguousarray  # the kernel is compiled for C-contiguous arrays
-    return kernels.gap_summary(
-        f["rows"], c(f["path"]), c(f["offset"]), f["s"], f["v"], f["length"], f["width"], f["T"], den,
-        f["yaw"], c(f["xy"]), kappa, f["courteous"],
-        ctx["lane"], ctx["s"], ctx["v"], ctx["length"], c(ctx["offset"]),
-        c(xy_o), yaw_o, v_o, hl_o, hw_o, idx_o,
-        blocked, conflict, committed, t.stopped_time, t.intention, t.active, t.lc_dist, c(t._current_pos),
-        *_gap_constants(t))
-
-
-def _gap_constants(t: Traffic) -> tuple:
-    """`kernels.gap_summary`'s arguments that are the traffic's own (map, approaches, configuration, constants),
-    gathered once per Traffic."""
-    if t._gap_constants is None:
-        m, cfg = t.map, t.config
-        n_y = len(m.yield_lane) if t.approaches is None else 0
-        table = t.approaches if t.approaches is not None and len(t.approaches) else _NO_APPROACHES
-        c = np.ascontiguousarray
-        t._gap_constants = (
-            m.cross_lane, c(m.cross_s), m.yield_lane[:n_y], m.yield_stop[:n_y], m.yield_merge[:n_y],
-            m.ending, m.length,
-            table.lane, table.s_in, table.s_out, table.other, table.o_in, table.o_out, table.yields, table.tie,
-            table.timed, table.merge, table.stop, table.courtesy, c(table.point), table.partner,
-            MERGE, YIELD, t.nv, cfg.lane_change_length, t.vehicle_slots,
-            cfg.min_gap, cfg.stop_gap, cfg.max_decel, cfg.corridor_range, cfg.corridor_margin, cfg.crosswalk_margin,
-            cfg.merge_clearance, cfg.merge_speed, cfg.critical_gap_crossing, cfg.impatience, cfg.critical_gap_merge,
-            cfg.courtesy_range, bool(t.urban),
-            COMMITTED, EDGE_MARGIN, MERGE_RANGE, CLEAR_ACCEL, CHANGING_RADIUS, HELD_SPEED, STANDING_ROOM, AT_LINE,
-            TURN_WAIT, CLAIM_DECEL, STOP_MARGIN)
-    return t._gap_constants
-
-
-def _merge_state(t: Traffic, ctx: dict, accept_gap: float) -> tuple[np.ndarray, np.ndarray]:
-    """Roundabout merges (Y,): whether a priority agent comes too soon (`merges.merge_conflicts`), and whether
-    an entering agent is committed past its yield line (circulating vehicles keep out of its way), in the
-    kernel (`kernels.merge_state`)."""
-    m, cfg = t.map, t.config
-    return kernels.merge_state(
-        np.ascontiguousarray(ctx["lane"]), ctx["s"], ctx["v"], ctx["length"], ctx["offset"], m.yield_lane,
-        m.yield_merge, m.yield_stop, t.active, t.lc_dist, cfg.lane_change_length, t.vehicle_slots,
-        np.ascontiguousarray(t._current_pos), t.v, t.length, np.ascontiguousarray(m.merge_xy), accept_gap,
-        cfg.merge_clearance, cfg.merge_speed, cfg.merge_clearance + 3.0)
-
-
-_NO_BOOL = np.zeros(0, dtype=bool)
-_NO_INT = np.zeros(0, dtype=np.int64)
-_NO_FLOAT = np.zeros(0)
-_NO_APPROACHES = ApproachTable(
-    lane=_NO_INT, s_in=_NO_FLOAT, s_out=_NO_FLOAT, other=_NO_INT, o_in=_NO_FLOAT, o_out=_NO_FLOAT, yields=_NO_BOOL,
-    tie=_NO_BOOL, timed=_NO_BOOL, merge=_NO_BOOL, zone=_NO_INT, stop=_NO_FLOAT, courtesy=_NO_BOOL,
-    point=np.zeros((0, 2)))
-
-
-def idm(t: Traffic, f: dict, ctx: dict, vcurve: np.ndarray, interaction: np.ndarray, room: np.ndarray,
-        to_give_way: np.ndarray) -> np.ndarray:
-    """IDM accelerations [m/s^2] from the followers' gap summaries (see `gap_summary`), capped so that each
-    can still stop within its room whatever the obstacle does."""
-    m, cfg = t.map, t.config
-    path, offset, s, v = f["path"], f["offset"], f["s"], f["v"]
-    front = s + f["length"] / 2
-    lane0 = np.maximum(path[:, 0], 0)
-    n_y = len(m.yield_lane) if t.approaches is None else 0
-    # Desired speed: own v0, the lane's speed limit, the curves ahead on this lane and the next.
-    nxt = path[:, 1]
-    to_end = m.length[lane0] - s
-    vnext = np.where(nxt >= 0, np.sqrt(m.entry_speed[np.maximum(nxt, 0)] ** 2
-                                       + 2 * m.anticipation * np.maximum(to_end, 0)), np.inf)
-    v0 = np.minimum(np.minimum(f["v0"], m.speed_limit[lane0]), np.minimum(vcurve, vnext))
-    if n_y:  # approach yield lines slowly enough to stop at them when a gap closes
-        to_line = (offset[:, m.yield_lane] + m.yield_stop[None] - front[:, None]).min(axis=1)
-        ahead_line = (to_line > -0.5) & (to_line < np.inf)
-        v0 = np.where(ahead_line, np.minimum(v0, np.sqrt(cfg.yield_speed**2 + 2 * 1.5 * np.maximum(to_line, 0))),
-                      v0)
-    slow = to_give_way < np.inf  # approach give-way lines slowly enough to stop at them
-    v0 = np.where(slow, np.minimum(v0, np.sqrt(cfg.yield_speed**2 + 2 * 1.5 * np.maximum(to_give_way, 0))), v0)
-    acc = f["a"] * (1.0 - (v / np.maximum(v0, 0.1)) ** 4 - interaction)
-    tau = cfg.decision_period
-    acc = np.where(v <= v0, np.minimum(acc, (v0 - v) / tau), acc)  # no overshoot of v0 in one period
-    # Safety cap (Krauss-like): whatever the obstacle does (braking at max_decel), the follower can
-    # still stop s0 short of it after this decision period: with the end speed w of the period,
-    # distance (v + w) tau / 2 + w^2 / (2 b) <= gap - s0 + v_lead^2 / (2 b).
-    b = cfg.max_decel
-    disc = 0.25 * tau * tau + 2.0 * (room - 0.5 * v * tau) / b
-    w = np.where(disc > 0, b * (np.sqrt(np.maximum(disc, 0.0)) - 0.5 * tau), 0.0)
-    # no positive end speed fits: stop within the room (the period's motion stops at v = 0)
-    acc = np.minimum(acc, np.where(w > 0, (w - v) / tau, -v * v / (2 * np.maximum(room, 1e-3))))
-    return np.maximum(np.minimum(acc, f["a"]), -cfg.max_decel)
-
-
-def obstacles(t: Traffic):
-    """Everything the corridor check sees: centre xy (O,2), yaw, speed, half length, half width, and the
-    follower row it is (vehicle row, nv for the ego, -1 for pedestrians); inactive vehicles left out."""
-    if t._obstacle_cache is not None:
-        return t._obstacle_cache
-    ego = t.ego
-    if KERNELS:  # the same arrays in one compiled pass
-        t._obstacle_cache = state_kernels.obstacles(
-            t.active, t.vehicle_slots, t.pedestrian_slots, t._current_pos, t._current_yaw, t._current_speed,
-            t.half_size, t._slot_row, ego is not None, *_ego_obstacle(ego), t.nv)
-        return t._obstacle_cache
-    slots = np.concatenate([t.vehicle_slots[t.active], t.pedestrian_slots])
-    n = len(slots) + (ego is not None)
+@inline
+def obstacles_now(vehicles, pedestrian_slots, now, half_size, ego):
+    """What the corridor check sees (O,): the active vehicles, the pedestrians (slots), then the ego if `ego` (x, y [m],
+    yaw [rad], speed [m/s], half length and width [m]) is not empty, at the slots' poses `now` (half sizes (N, 3)
+    [m]): centres (O, 2) [m], yaws [rad], speeds [m/s], half lengths and widths [m], and the follower row each is
+    (vehicle row, NV for the ego, -1 for pedestrians)."""
+    active, vehicle_slots = vehicles.active, vehicles.slot
+    n_active = 0
+    for r in range(len(active)):
+        n_active += active[r]
+    n = n_active + len(pedestrian_slots) + (1 if len(ego) else 0)
     xy, yaw, speed = np.empty((n, 2)), np.empty(n), np.empty(n)
-    hl, hw, idx = np.empty(n), np.empty(n), np.empty(n, dtype=np.int64)
-    k = len(slots)
-    xy[:k], yaw[:k], speed[:k] = t._current_pos[slots, :2], t._current_yaw[slots], t._current_speed[slots]
-    hl[:k], hw[:k] = t.half_size[slots, 0], t.half_size[slots, 1]
-    idx[:k] = t._slot_row[slots]
-    if ego is not None:
-        xy[k], yaw[k], speed[k] = (ego.x, ego.y), ego.yaw, max(ego.speed, 0.0)
-        hl[k], hw[k], idx[k] = ego.length / 2, ego.width / 2, t.nv
-    t._obstacle_cache = (xy, yaw, speed, hl, hw, idx)
-    return t._obstacle_cache
+    hl, hw, row = np.empty(n), np.empty(n), np.empty(n, dtype=np.int64)
+    k = 0
+    for j in range(len(active) + len(pedestrian_slots)):
+        if j < len(active):
+            if not active[j]:
+                continue
+            slot, row[k] = vehicle_slots[j], j
+        else:
+            slot, row[k] = pedestrian_slots[j - len(active)], -1
+        xy[k, 0], xy[k, 1] = now.pos[slot, 0], now.pos[slot, 1]
+        yaw[k], speed[k] = now.yaw[slot], now.speed[slot]
+        hl[k], hw[k] = half_size[slot, 0], half_size[slot, 1]
+        k += 1
+    if len(ego):
+        xy[k, 0], xy[k, 1], yaw[k], speed[k], hl[k], hw[k] = ego[0], ego[1], ego[2], ego[3], ego[4], ego[5]
+        row[k] = len(active)
+    return xy, yaw, speed, hl, hw, row
 
 
-def _ego_obstacle(ego) -> tuple[float, float, float, float, float, float]:
-    """The ego's x, y [m], yaw [rad], speed [m/s], half length and half width [m] as `obstacles` takes them
-    (zeros without an ego)."""
-    if ego is None:
-        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    return float(ego.x), float(ego.y), float(ego.yaw), max(ego.speed, 0.0), ego.length / 2, ego.width / 2
+@inline
+def _fold(state, gap: float, lead: float, s0: float, v: float, vT: float, den: float, two_b: float):
+    """Add one column (gap [m], obstacle speed [m/s], s0 [m]) to a follower's (smallest gap, largest
+    interaction, least room) (v: its speed [m/s], vT: v times its headway [m], den: IDM's 2 sqrt(a b) [m/s^2],
+    two_b: twice the emergency braking [m/s^2])."""
+    smallest, strongest, least = state
+    smallest = minimum(smallest, gap)
+    if gap < INF:
+        s_star = s0 + maximum(0.0, vT + v * (v - lead) / den)
+        q = s_star / maximum(gap, MIN_GAP_DIVISOR)
+        strongest = maximum(strongest, q * q)
+        v_lead = maximum(lead, 0.0)
+        least = minimum(least, gap - s0 + v_lead * v_lead / two_b)
+    return smallest, strongest, least
+
+
+@inline
+def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, kappa, tables, c, accept_gap):
+    """For every follower: the smallest gap [m] of its gap table (inf if none), the largest IDM interaction term
+    (s*/gap)^2, the least stopping room [m] (gap - s0 + v_lead^2 / 2 max_decel; inf if none) and the distance [m]
+    to its nearest give-way line still ahead (inf if none). kappa: the curvature [1/m] at each follower (the
+    corridor bends with it)."""
+    f_, lanes, crossings, merges = followers, tables.lanes, tables.crossings, tables.merges
+    # the arrays the loops read, as locals (reading a NamedTuple's array in a loop costs reference counting there)
+    path, offset, s, v, length, width, f_xy = f_.path, f_.offset, f_.s, f_.v, f_.length, f_.width, f_.xy
+    lane_a, s_a, v_a, len_a = agents.path[:, 0], agents.s, agents.v, agents.length
+    o_xy, o_yaw, o_speed, o_hl, o_hw, o_row = obstacles
+    n_f, n_a, n_o, n_k = len(s), len(s_a), len(o_row), len(crossings.lane)
+    lead_gap = np.full(n_f, INF)
+    interaction = np.zeros(n_f)
+    room = np.full(n_f, INF)
+    two_b = 2 * c.max_decel
+    den = 2.0 * np.sqrt(f_.a_max * f_.b_comf)  # [m/s^2] IDM's 2 sqrt(a b)
+    cos_f, sin_f = np.empty(n_f), np.empty(n_f)  # the followers' headings' cosines and sines (libm's, as numpy's)
+    for f in range(n_f):
+        cos_f[f], sin_f[f] = math.cos(f_.yaw[f]), math.sin(f_.yaw[f])
+    cos_o, sin_o = np.empty(n_o), np.empty(n_o)  # the obstacles'
+    for o in range(n_o):
+        cos_o[o], sin_o[o] = math.cos(o_yaw[o]), math.sin(o_yaw[o])
+    blocked = occupied_crossings(pedestrians, crossings, c.crosswalk_margin + BAND_MARGIN)
+    conflict, committed = merge_state(agents, vehicles, merges, slot_pos, accept_gap, c)
+    z_start, z_line, z_gap, z_speed, to_give_way = zone_stops(f_, agents, vehicles, tables.approaches, slot_pos, c)
+
+    for f in range(n_f):
+        row, offset_f = f_.row[f], offset[f]
+        front = s[f] + length[f] / 2
+        vf = v[f]
+        vT = vf * f_.headway[f]
+        state = (INF, 0.0, INF)  # smallest gap, largest interaction, least room
+
+        # 1. Leaders along the planned path (vehicles and the ego).
+        best_path, best_a = INF, 0
+        for a in range(n_a):
+            g = path_gap(offset_f, s[f], front, row, a, lane_a, s_a, len_a)
+            if g < best_path:
+                best_path, best_a = g, a
+            state = _fold(state, g, v_a[a], c.min_gap, vf, vT, den[f], two_b)
+
+        # 2. Anything in the corridor ahead (curvature-corrected): vehicles, the ego, pedestrians.
+        for o in range(n_o):
+            rx = o_xy[o, 0] - f_xy[f, 0]
+            ry = o_xy[o, 1] - f_xy[f, 1]
+            dx = cos_f[f] * rx + sin_f[f] * ry
+            dy = -sin_f[f] * rx + cos_f[f] * ry - 0.5 * kappa[f] * dx * dx
+            cos_d = cos_o[o] * cos_f[f] + sin_o[o] * sin_f[f]  # of the obstacle's yaw relative to the follower
+            cd, sd = abs(cos_d), abs(sin_o[o] * cos_f[f] - cos_o[o] * sin_f[f])
+            hl, hw = o_hl[o], o_hw[o]
+            inside = dx > 0 and dx < c.corridor_range and o_row[o] != row
+            inside = inside and abs(dy) < (width[f] / 2 + c.corridor_margin) + sd * hl + cd * hw
+            g = dx - length[f] / 2 - cd * hl - sd * hw if inside else INF
+            state = _fold(state, g, o_speed[o] * cos_d, c.min_gap, vf, vT, den[f], two_b)
+
+        # 3. Crosswalk stop lines.
+        if n_k:
+            leader_gap = minimum(best_path, 1e9)
+            slow_leader = leader_gap < 1e9 and v_a[best_a] < SLOW_LEADER
+            for k in range(n_k):
+                g = crosswalk_stop(offset_f, front, length[f], crossings, k, blocked[k], slow_leader, leader_gap,
+                                   c.crosswalk_margin, c.min_gap)
+                state = _fold(state, g, 0.0, c.stop_gap, vf, vT, den[f], two_b)
+
+        # 4. Roundabout merges: stop lines while a priority agent comes, room for committed entries.
+        for y in range(len(merges.lane)):
+            line, keep_out = merge_stops(offset_f, front, vf, merges, y, conflict[y], committed[y],
+                                         c.merge_clearance)
+            state = _fold(state, line, 0.0, c.stop_gap, vf, vT, den[f], two_b)
+            state = _fold(state, keep_out, 0.0, c.stop_gap, vf, vT, den[f], two_b)
+
+        # 5. Urban rules: conflict zones on the follower's path.
+        for k in range(z_start[f], z_start[f + 1]):
+            state = _fold(state, z_line[k], 0.0, c.stop_gap, vf, vT, den[f], two_b)
+            state = _fold(state, z_gap[k], z_speed[k], c.min_gap, vf, vT, den[f], two_b)
+
+        # ... and the end of an ending lane (an on-ramp) is a wall until the vehicle has moved over.
+        if tables.urban:
+            k_end = -1
+            for j in range(path.shape[1]):
+                if path[f, j] >= 0:
+                    k_end += 1
+            last = path[f, max(k_end, 0)]
+            lane_last = max(last, 0)
+            ends = lanes.ending[lane_last] and last >= 0
+            to_end = offset_f[lane_last] + lanes.length[lane_last] - front
+            state = _fold(state, to_end if ends else INF, 0.0, c.stop_gap, vf, vT, den[f], two_b)
+
+        lead_gap[f], interaction[f], room[f] = state
+    return lead_gap, interaction, room, to_give_way
+
+
+@inline
+def path_gap(offset_f, s, front, row, a, lane_a, s_a, len_a):
+    """The gap [m] from a follower (agent `row`, at s [m] along its lane, its front bumper at `front` [m]; offset_f:
+    its row of `Agents.offset`) to agent a's rear bumper if a is ahead on its path (at the same s: the higher row is
+    ahead), else inf (the agents' lanes, s [m] and lengths [m]: lane_a, s_a, len_a)."""
+    pos = offset_f[lane_a[a]] + s_a[a]
+    ahead = (pos > s or (pos == s and a > row)) and a != row
+    return pos - front - len_a[a] / 2 if ahead else INF
+
+
+@jit
+def path_leader(agents, row):
+    """The nearest agent ahead of agent `row` on its path: the gap [m] from its front bumper to that agent's rear
+    bumper and that agent's speed [m/s] ((inf, 0.0): none)."""
+    lane_a, s_a, len_a = agents.path[:, 0], agents.s, agents.length
+    s, front, offset_row = s_a[row], s_a[row] + len_a[row] / 2, agents.offset[row]
+    best, speed = INF, 0.0
+    for a in range(len(s_a)):
+        g = path_gap(offset_row, s, front, row, a, lane_a, s_a, len_a)
+        if g < best:
+            best, speed = g, agents.v[a]
+    return best, speed
+
+
+@inline
+def desired_speed(followers, vcurve, to_give_way, lanes, merges, yield_speed):
+    """Each follower's desired speed [m/s]: its own, the lane's limit, the curves ahead on this lane and the next
+    (vcurve [m/s]: this lane's), and slow enough to stop at yield lines (roundabout merges) and give-way lines ahead
+    (to_give_way [m]) braking at LINE_DECEL, reaching them at `yield_speed` [m/s] at most; and its speed's ratio to
+    it, v / max(v0, MIN_DESIRED_SPEED) (whose 4th power, left to numpy, enters IDM)."""
+    f_ = followers
+    path, s = f_.path, f_.s
+    n_f, n_y = len(s), len(merges.lane)
+    out = np.empty(n_f)
+    ratio = np.empty(n_f)
+    ys2 = yield_speed**2
+    for f in range(n_f):
+        lane0 = max(path[f, 0], 0)
+        nxt = path[f, 1]
+        vnext = INF
+        if nxt >= 0:
+            e = lanes.entry_speed[max(nxt, 0)]
+            vnext = np.sqrt(e * e + 2 * lanes.anticipation * maximum(lanes.length[lane0] - s[f], 0.0))
+        v0 = minimum(minimum(f_.v0[f], lanes.speed_limit[lane0]), minimum(vcurve[f], vnext))
+        if n_y:
+            front = s[f] + f_.length[f] / 2
+            to_line = INF
+            for y in range(n_y):
+                to_line = minimum(to_line, f_.offset[f, merges.lane[y]] + merges.stop[y] - front)
+            if to_line > -0.5 and to_line < INF:
+                v0 = minimum(v0, np.sqrt(ys2 + 2 * LINE_DECEL * maximum(to_line, 0.0)))
+        if to_give_way[f] < INF:
+            v0 = minimum(v0, np.sqrt(ys2 + 2 * LINE_DECEL * maximum(to_give_way[f], 0.0)))
+        out[f] = v0
+        ratio[f] = f_.v[f] / maximum(v0, MIN_DESIRED_SPEED)
+    return out, ratio
+
+
+@jit
+def idm(a, v, v0, ratio4, interaction, room, tau, max_decel):
+    """IDM accelerations [m/s^2] (a: the maximum [m/s^2]; v, v0: speed and desired speed [m/s]; ratio4: (v /
+    max(v0, MIN_DESIRED_SPEED))^4; the interaction terms and stopping rooms [m] of `gap_summary`), no overshoot of
+    v0 within the decision period tau [s], and capped (Krauss-like) so that whatever the obstacle does (braking at
+    max_decel [m/s^2]) the follower can still stop s0 short of it after this period: with the end speed w of the
+    period, distance (v + w) tau / 2 + w^2 / (2 b) <= gap - s0 + v_lead^2 / (2 b)."""
+    out = np.empty(len(v))
+    b = max_decel
+    for f in range(len(v)):
+        vf = v[f]
+        acc = a[f] * (1.0 - ratio4[f] - interaction[f])
+        if vf <= v0[f]:
+            acc = minimum(acc, (v0[f] - vf) / tau)
+        disc = 0.25 * tau * tau + 2.0 * (room[f] - 0.5 * vf * tau) / b
+        w = b * (np.sqrt(maximum(disc, 0.0)) - 0.5 * tau) if disc > 0 else 0.0
+        # no positive end speed fits: stop within the room (the period's motion stops at v = 0)
+        acc = minimum(acc, (w - vf) / tau if w > 0 else -vf * vf / (2 * maximum(room[f], 1e-3)))
+        out[f] = maximum(minimum(acc, a[f]), -max_decel)
+    return out

@@ -1,4 +1,4 @@
-"""Pure geometry of road users: smooth lane-change profile, yaw quaternions, overlap of oriented boxes."""
+"""Pure geometry of road users: smooth lane-change profile, overlap of oriented boxes."""
 
 from __future__ import annotations
 
@@ -9,15 +9,6 @@ def smoothstep(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """3x^2 - 2x^3 on [0, 1] and its derivative."""
     x = np.minimum(np.maximum(x, 0.0), 1.0)
     return x * x * (3.0 - 2.0 * x), 6.0 * x * (1.0 - x)
-
-
-def yaw_quat(yaw: np.ndarray) -> np.ndarray:
-    """Quaternions (..., 4) (w, x, y, z) of rotations by yaw [rad] about z."""
-    q = np.zeros(yaw.shape + (4,))
-    half = 0.5 * yaw
-    np.cos(half, out=q[..., 0])
-    np.sin(half, out=q[..., 3])
-    return q
 
 
 def overlapping_pairs(poses: np.ndarray, half_sizes: np.ndarray, margin: float = 0.0) -> np.ndarray:

@@ -14,13 +14,11 @@ Observations normalise them to [0, 1] as value / 2 (§5.1.2).
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import NamedTuple
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from mjdrive.traffic.model import Traffic
+from mjdrive.compiled import inline, jit
 
 SCENARIOS = ("lane_change", "crossroad", "merge", "roundabout")  # columns of Traffic.intention
 LANE_CHANGE, CROSSROAD, MERGE, ROUNDABOUT = range(4)
@@ -31,8 +29,7 @@ BEFORE, AFTER = 0, 1  # roundabout: leaves the ring before / after the ego's exi
 TURN_ANGLE = np.radians(30.0)  # [rad] heading change above which a junction connector is a turn
 
 
-@dataclass(frozen=True)
-class LaneRoles:
+class LaneRoles(NamedTuple):
     """Build-time facts of a map's lanes for intentions: the turn of each junction connector (STRAIGHT,
     LEFT, RIGHT; -1 for other lanes), ring lanes (on a cycle of non-junction lanes) and ring exits."""
 
@@ -67,84 +64,139 @@ class LaneRoles:
         priority = np.array([getattr(lane, "priority", 0) for lane in lanes], dtype=np.int64)
         return cls(turn, ring, ring_exit, priority)
 
-
-def draw(t: Traffic, rows: np.ndarray) -> None:
-    """New intentions for vehicles `rows` (at spawn), from the configured shares: for each scenario a uniform
-    draw per vehicle against the shares' cumulative distribution (what `Generator.choice(n, size, p=shares)`
-    does, the same draws and values, without its checks of p on every call)."""
-    rng = t.intent_rng
-    for column, cdf in intention_cdfs(t.config):
-        t.intention[rows, column] = cdf.searchsorted(rng.random(len(rows)), side="right")
-    t.ring_passed[rows] = False
-
-
-@functools.lru_cache(maxsize=32)
-def intention_cdfs(cfg) -> tuple[tuple[int, np.ndarray], ...]:
-    """(column, cumulative distribution) of each scenario's intention shares of a TrafficConfig (normalised as
-    `Generator.choice` normalises p)."""
-    out = []
-    for column, shares in ((LANE_CHANGE, cfg.lane_change_intentions), (CROSSROAD, cfg.turn_intentions),
-                           (MERGE, cfg.merge_intentions), (ROUNDABOUT, cfg.roundabout_intentions)):
-        p = np.asarray(shares, dtype=float)
-        if not (np.all(p >= 0) and p.sum() > 0):
-            raise ValueError(f"intention shares must be >= 0 and not all 0, got {shares}")
-        p = p / p.sum()
-        cdf = p.cumsum()
-        cdf /= cdf[-1]
-        cdf.flags.writeable = False
-        out.append((column, cdf))
-    return tuple(out)
+    @classmethod
+    def none(cls) -> LaneRoles:
+        """No roles (no urban rules: successors are drawn at random)."""
+        return cls(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool), np.zeros(0, dtype=bool),
+                   np.zeros(0, dtype=np.int64))
 
 
 @functools.lru_cache(maxsize=32)
 def intention_table(cfg) -> tuple[np.ndarray, np.ndarray]:
-    """`intention_cdfs` as arrays for kernels: the cumulative distributions (I, W), padded with inf (never <= a
-    draw), and their columns of Traffic.intention (I,)."""
-    cdfs = intention_cdfs(cfg)
-    table = np.full((len(cdfs), max(len(cdf) for _, cdf in cdfs)), np.inf)
-    for i, (_, cdf) in enumerate(cdfs):
-        table[i, : len(cdf)] = cdf
+    """Each scenario's intention shares of a TrafficConfig as a cumulative distribution (normalised as
+    `Generator.choice` normalises p), in a table (I, W) padded with inf (never <= a draw) for `draw_intentions`,
+    and their columns of `Vehicles.intention` (I,)."""
+    scenarios = ((LANE_CHANGE, cfg.lane_change_intentions), (CROSSROAD, cfg.turn_intentions),
+                 (MERGE, cfg.merge_intentions), (ROUNDABOUT, cfg.roundabout_intentions))
+    table = np.full((len(scenarios), max(len(shares) for _, shares in scenarios)), np.inf)
+    for i, (_, shares) in enumerate(scenarios):
+        p = np.asarray(shares, dtype=float)
+        if not (np.all(p >= 0) and p.sum() > 0):
+            raise ValueError(f"intention shares must be >= 0 and not all 0, got {shares}")
+        cdf = (p / p.sum()).cumsum()
+        table[i, : len(cdf)] = cdf / cdf[-1]
     table.flags.writeable = False
-    columns = np.array([column for column, _ in cdfs], dtype=np.int64)
+    columns = np.array([column for column, _ in scenarios], dtype=np.int64)
     columns.flags.writeable = False
     return table, columns
 
 
-def successor_preference(t: Traffic, rows: np.ndarray, lane: np.ndarray) -> np.ndarray:
-    """(K, W) bool: the successors of `lane` (rows' path lanes) that honour the rows' intentions: the
-    connector of their turn at a junction; at a ring exit, leave before the ego's exit (BEFORE) or only
-    after passing it (AFTER). All successors where nothing applies."""
-    m, roles = t.map, t.roles
-    lane0 = np.maximum(lane, 0)
-    succ = m.successors[lane0]  # (K, W)
-    valid = succ >= 0
-    s0 = np.maximum(succ, 0)
-    turn = roles.turn[s0]
-    wanted = t.intention[rows, CROSSROAD][:, None]
-    ok = valid & ((turn < 0) | (turn == wanted) | roles.ring_exit[s0])
-    exits = valid & roles.ring_exit[s0]
-    if t.ego_exit >= 0 and exits.any():
-        ego_exit = exits & (succ == t.ego_exit)
-        before = t.intention[rows, ROUNDABOUT] == BEFORE
-        passed = t.ring_passed[rows]
-        take = np.where(before[:, None], exits & ~ego_exit & ~passed[:, None], exits & passed[:, None] & ~ego_exit)
-        stay = valid & ~exits
-        choose_exit = take.any(axis=1)
-        ok = np.where(choose_exit[:, None], take, np.where(exits.any(axis=1)[:, None], stay, ok))
-    none = ~ok.any(axis=1)
-    return np.where(none[:, None], valid, ok)
+@inline
+def draw_intentions(intention, rows, u, cdfs, columns):
+    """New intentions for vehicles `rows` (K,), in place: intention[rows, columns[i]] is the index where the uniform
+    draw u[i, j] falls in the cumulative shares cdfs[i] (inf-padded; `intention_table`), cdf.searchsorted(u,
+    side="right"): `Generator.choice(n, K, p=shares)`'s values for the same draws."""
+    for i in range(len(columns)):
+        for j in range(len(rows)):
+            c = 0
+            while c < cdfs.shape[1] and cdfs[i, c] <= u[i, j]:
+                c += 1
+            intention[rows[j], columns[i]] = c
 
 
-def note_ring_progress(t: Traffic, rows: np.ndarray, lane: np.ndarray, chosen: np.ndarray) -> None:
-    """Remember which planned paths go past the ego's exit (a ring lane with the ego's exit as successor,
-    followed by the ring), and forget it when a path leaves the ring."""
-    if t.ego_exit < 0 or not len(rows):
-        return
-    m = t.map
-    lane0 = np.maximum(lane, 0)
-    at_ego_exit = (m.successors[lane0] == t.ego_exit).any(axis=1)
-    passed = at_ego_exit & (chosen != t.ego_exit) & (chosen >= 0)
-    # A vehicle meant to leave before the ego's exit that reaches it first cannot: it leaves after it.
-    t.intention[rows[passed], ROUNDABOUT] = AFTER
-    left_ring = (chosen >= 0) & ~t.roles.ring[np.maximum(chosen, 0)] & ~t.roles.ring_exit[np.maximum(chosen, 0)]
-    t.ring_passed[rows] = (t.ring_passed[rows] | passed) & ~left_ring
+class Routes(NamedTuple):
+    """What the choice of a vehicle's next lane reads: the lane graph's successors (L, W) (-1 padded) and their
+    counts, the lanes' roles, the ego's ring exit (-1: none) and whether intentions rule the choice (urban)."""
+
+    successors: np.ndarray
+    n_successors: np.ndarray
+    roles: LaneRoles
+    ego_exit: int
+    urban: bool
+
+
+def draw_successors(routes: Routes, vehicles, rows: np.ndarray, lane: np.ndarray, rng: np.random.Generator
+                    ) -> np.ndarray:
+    """A successor of each lane (K,) (-1 for a dead end or -1) for vehicles `rows` (K,) (whose paths `lane` belongs
+    to): `next_lanes` with a uniform draw each from `rng`."""
+    return next_lanes(routes, vehicles.intention, vehicles.ring_passed, rows, lane, rng.random(len(lane)))
+
+
+def fill_paths(routes: Routes, vehicles, rows: np.ndarray, rng: np.random.Generator, start: int = 1) -> None:
+    """Successors for vehicles.path[rows, start:] (in place), drawn one path column at a time."""
+    path = vehicles.path
+    for k in range(start, path.shape[1]):  # loops over path depth, not over road users
+        path[rows, k] = draw_successors(routes, vehicles, rows, path[rows, k - 1], rng)
+
+
+@jit
+def next_lanes(routes, intention, ring_passed, rows, lane, u):
+    """A successor of each lane (K,) of vehicles `rows` with their uniform draws u (K,): under urban rules one that
+    honours their intentions (`honoured_successors`), else any (`random_successors`)."""
+    if routes.urban:
+        return honoured_successors(routes, intention, ring_passed, rows, lane, u)
+    return random_successors(routes, lane, u)
+
+
+@inline
+def random_successors(routes, lane, u):
+    """Successor floor(u * count) of each lane (-1 for a dead end or -1), with u (K,) uniform draws."""
+    successors = routes.successors
+    out = np.empty(len(lane), dtype=np.int64)
+    for k in range(len(lane)):
+        lane0 = max(lane[k], 0)
+        count = routes.n_successors[lane0] if lane[k] >= 0 else 0
+        pick = np.int64(np.floor(u[k] * max(count, 1)))
+        out[k] = successors[lane0, min(pick, successors.shape[1] - 1)] if count > 0 else -1
+    return out
+
+
+@inline
+def honoured_successors(routes, intention, ring_passed, rows, lane, u):
+    """Under urban rules, a random successor of each lane (K,) among those that honour the intentions of vehicles
+    `rows` (K,), with their uniform draws u (K,): the connector of their turn at a junction; at a ring exit, leave
+    before the ego's exit (BEFORE) or only after passing it (AFTER); any where nothing applies (-1 for dead ends).
+    Then remember (in `ring_passed`, in place) which planned paths go past the ego's exit (a ring lane with the
+    ego's exit as successor, followed by the ring), forgetting it when a path leaves the ring; a vehicle meant to
+    leave before the ego's exit that reaches it first leaves after it (its intention, in place, becomes AFTER)."""
+    successors, roles, ego_exit = routes.successors, routes.roles, routes.ego_exit
+    turn, ring, ring_exit = roles.turn, roles.ring, roles.ring_exit
+    n_k, n_w = len(rows), successors.shape[1]
+    chosen = np.empty(n_k, dtype=np.int64)
+    valid, exits = np.zeros(n_w, dtype=np.bool_), np.zeros(n_w, dtype=np.bool_)
+    take, allowed = np.zeros(n_w, dtype=np.bool_), np.zeros(n_w, dtype=np.bool_)
+    for k in range(n_k):
+        row, lane0 = rows[k], max(lane[k], 0)
+        wanted, before, passed = intention[row, CROSSROAD], intention[row, ROUNDABOUT] == BEFORE, ring_passed[row]
+        for j in range(n_w):
+            succ = successors[lane0, j]
+            s0 = max(succ, 0)
+            valid[j] = succ >= 0
+            exits[j] = valid[j] and ring_exit[s0]
+            take[j] = exits[j] and succ != ego_exit and (not passed if before else passed)
+            allowed[j] = valid[j] and (turn[s0] < 0 or turn[s0] == wanted or ring_exit[s0])
+        if ego_exit >= 0 and exits.any():  # at a ring exit: leave before (after) the ego's exit, or stay
+            allowed[:] = take if take.any() else valid & ~exits
+        if not allowed.any():
+            allowed[:] = valid
+        count = allowed.sum() if lane[k] >= 0 else 0
+        pick = np.int64(np.floor(u[k] * max(count, 1)))
+        column, running = 0, 0
+        for j in range(n_w):
+            running += allowed[j]
+            if running > pick:
+                column = j
+                break
+        chosen[k] = successors[lane0, column] if count > 0 else -1
+    if ego_exit >= 0:  # the ring progress
+        for k in range(n_k):
+            row, lane0, c = rows[k], max(lane[k], 0), chosen[k]
+            at_ego_exit = False
+            for j in range(n_w):
+                at_ego_exit |= successors[lane0, j] == ego_exit
+            passed = at_ego_exit and c != ego_exit and c >= 0
+            if passed:
+                intention[row, ROUNDABOUT] = AFTER
+            left_ring = c >= 0 and not ring[max(c, 0)] and not ring_exit[max(c, 0)]
+            ring_passed[row] = (ring_passed[row] or passed) and not left_ring
+    return chosen

@@ -1,24 +1,86 @@
 """Build-time tables of a RoadMap for traffic: every lane polyline in flat arrays, successors,
-same-direction neighbours, merges (where entering lanes yield), crosswalk crossings and spawn points.
+same-direction neighbours, merges (where entering lanes yield), crosswalk crossings and spawn points; and the
+kernels that read a lane's polyline (`centre_point`, `curve_speed`).
 
-Everything here is computed once per map (Python loops over lanes and crosswalks are fine at build time);
-`TrafficMap.lookup` then turns (lane, s) arrays of any shape into poses with one `searchsorted`.
+Everything here is computed once per map (Python loops over lanes and crosswalks are fine at build time); the
+kernels take the tables as NamedTuples (`LaneTables`, `Polylines`, `Crossings`, `Merges`).
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
+from mjdrive.compiled import inline, jit, maximum, minimum
 from mjdrive.roads import Marking, RoadMap, spawn_points
 from mjdrive.roads.geometry import BOX_CORNERS, box_points
-from mjdrive.traffic import kernels
-from mjdrive.traffic.kernels import KERNELS
 
 LANE_GAP = 1.0  # [m] gap between consecutive lanes in the flat arc-length coordinate
 REFERENCE_HALF_SIZE = (2.4, 1.0)  # [m] half length and half width of the largest vehicle (stop lines)
 STOP_CLEARANCE = 1.0  # [m] a vehicle waiting at a merge stop line stays this far outside the priority lane
 SPAWN_STEP = 3.0  # [m] candidate spawn points along each lane
 SPAWN_MARGIN = 5.0  # [m] from the lane ends
+
+
+class LaneTables(NamedTuple):
+    """Every lane (L,) of a TrafficMap, for kernels: size, graph, speeds (the map's attributes of the same names)."""
+
+    length: np.ndarray  # [m]
+    width: np.ndarray  # [m]
+    speed_limit: np.ndarray  # [m/s]
+    successors: np.ndarray  # (L, W) int, -1 padded
+    n_successors: np.ndarray  # int
+    right: np.ndarray  # int: the same-direction neighbour a vehicle may change to (-1: none)
+    left: np.ndarray  # int
+    ends_at_merge: np.ndarray  # bool
+    starts_at_merge: np.ndarray  # bool
+    ending: np.ndarray  # bool: ends beside a neighbour that goes on (an on-ramp)
+    in_junction: np.ndarray  # bool
+    entry_speed: np.ndarray  # [m/s] the curve speed at each lane's start, anticipating its successors
+    anticipation: float  # [m/s^2] braking for the curves ahead
+
+
+class Polylines(NamedTuple):
+    """Every lane's centre line in one flat arc-length coordinate, for kernels (the map's attributes of the same
+    names; per vertex or segment: g, inv ... dk)."""
+
+    length: np.ndarray  # (L,) [m]
+    base: np.ndarray  # (L,) [m] the lane's start in the flat arc-length coordinate
+    first: np.ndarray  # int: the lane's first vertex
+    last_segment: np.ndarray  # int: the lane's last segment
+    g: np.ndarray  # (V,) [m] flat arc length of every vertex
+    inv: np.ndarray  # (V - 1,) [1/m] 1 / segment length
+    x0: np.ndarray  # (V - 1,) [m] segment start and step, x
+    dx: np.ndarray
+    y0: np.ndarray  # ... y [m]
+    dy: np.ndarray
+    h0: np.ndarray  # ... heading [rad]
+    dh: np.ndarray
+    v0: np.ndarray  # ... curve speed [m/s]
+    dv: np.ndarray
+    k0: np.ndarray  # ... curvature [1/m]
+    dk: np.ndarray
+
+
+class Crossings(NamedTuple):
+    """Where lanes cross crosswalks (K,), and the crosswalks' centres (C, 2) [m]."""
+
+    lane: np.ndarray  # int
+    s: np.ndarray  # (K, 2) [m] interval along the lane
+    crosswalk: np.ndarray  # int
+    u: np.ndarray  # (K, 2) [m] the lane's strip along the crosswalk
+    centre: np.ndarray  # (C, 2) [m]
+
+
+class Merges(NamedTuple):
+    """Roundabout entries (Y,) (junction lanes that join a lane which also continues a ring lane): the entering
+    lane, its stop line [m] (front bumper), the lane it joins and that lane's start (the merge point) (Y, 2) [m]."""
+
+    lane: np.ndarray
+    stop: np.ndarray
+    merge: np.ndarray
+    xy: np.ndarray
 
 
 def polyline_distance(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
@@ -57,13 +119,15 @@ class TrafficMap:
         self._flatten()
         self._graph()
         self._curve_speed(lateral_accel, anticipation)
-        self._merges()
-        self._crossings()
-        self._spawn_points()
+        self._find_merges()
+        self._find_crossings()
         goes_on = lambda lane: (lane >= 0) & (self.n_successors[np.maximum(lane, 0)] > 0)  # noqa: E731
         # (L,) lanes without successors beside a same-direction neighbour that goes on (an on-ramp; not the
         # lanes of a road leaving the map, which all end)
         self.ending = (self.n_successors == 0) & (goes_on(self.left) | goes_on(self.right))
+        self.lane_tables = LaneTables(*(getattr(self, name) for name in LaneTables._fields))
+        self.polylines = Polylines(*(getattr(self, name) for name in Polylines._fields))
+        self._spawn_points()
 
     # --- flat polylines --------------------------------------------------------------------------------
     def _flatten(self) -> None:
@@ -79,38 +143,18 @@ class TrafficMap:
         self.g = g
         # Per segment (vertex i to i+1); segments that join two lanes are never selected by `lookup`.
         dg = np.diff(g)
-        self._inv = 1.0 / np.where(dg > 1e-12, dg, 1.0)
-        self._x0, self._dx = xy[:-1, 0], np.diff(xy[:, 0])
-        self._y0, self._dy = xy[:-1, 1], np.diff(xy[:, 1])
-        self._h0, self._dh = h[:-1], np.diff(h)
-        self._k0, self._dk = k[:-1], np.diff(k)
+        self.inv = 1.0 / np.where(dg > 1e-12, dg, 1.0)
+        self.x0, self.dx = xy[:-1, 0], np.diff(xy[:, 0])
+        self.y0, self.dy = xy[:-1, 1], np.diff(xy[:, 1])
+        self.h0, self.dh = h[:-1], np.diff(h)
+        self.k0, self.dk = k[:-1], np.diff(k)
 
-    def _segment(self, lane: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        gq = self.base[lane] + np.minimum(np.maximum(s, 0.0), self.length[lane])
-        i = np.searchsorted(self.g, gq, side="right") - 1
-        i = np.minimum(np.maximum(i, self.first[lane]), self.last_segment[lane])
-        return i, (gq - self.g[i]) * self._inv[i]
-
-    def lookup(self, lane: np.ndarray, s: np.ndarray, curvature: bool = False):
-        """Centre-line x, y [m] and heading [rad] (and curvature [1/m]) at arc length s [m] on `lane`
-        (arrays of one shape; s is clamped to the lane)."""
-        i, t = self._segment(lane, s)
-        x = self._x0[i] + t * self._dx[i]
-        y = self._y0[i] + t * self._dy[i]
-        h = self._h0[i] + t * self._dh[i]
-        if curvature:
-            return x, y, h, self._k0[i] + t * self._dk[i]
-        return x, y, h
-
-    def curve_speed(self, lane: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Curve speed [m/s] anticipating the curves ahead on `lane` (at `anticipation` deceleration; add
-        those of the next lane with `entry_speed`), and the curvature [1/m], at arc length s [m] on `lane`
-        ((F,) arrays; `kernels.curve_speed` with numba: the same numbers)."""
-        if KERNELS:
-            return kernels.curve_speed(lane, s, self.base, self.length, self.first, self.last_segment, self.g,
-                                       self._inv, self._v0, self._dv, self._k0, self._dk)
-        i, t = self._segment(lane, s)
-        return self._v0[i] + t * self._dv[i], self._k0[i] + t * self._dk[i]
+    def lookup(self, lane: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Centre-line x, y [m] and heading [rad] at arc length s [m] on `lane` (arrays of one shape; s is clamped
+        to the lane)."""
+        lane, s = np.broadcast_arrays(np.asarray(lane, dtype=np.int64), np.asarray(s, dtype=float))
+        x, y, h = centre_points(self.polylines, lane.ravel(), s.ravel())
+        return x.reshape(lane.shape), y.reshape(lane.shape), h.reshape(lane.shape)
 
     def _curve_speed(self, lateral_accel: float, anticipation: float) -> None:
         """Per vertex: the highest speed from which every curve ahead (this lane and, at its end, the slowest
@@ -134,7 +178,7 @@ class TrafficMap:
         self.entry_speed = entry  # [m/s] (L,) the curve speed at each lane's start, anticipating its successors
         self.anticipation = anticipation
         v = np.concatenate(within)  # the curves of the lane itself; the next lane is added at run time
-        self._v0, self._dv = v[:-1], np.diff(v)
+        self.v0, self.dv = v[:-1], np.diff(v)
 
     # --- lane graph ------------------------------------------------------------------------------------
     def _graph(self) -> None:
@@ -163,7 +207,7 @@ class TrafficMap:
                 self.left[i] = left
 
     # --- merges ------------------------------------------------------------------------------------------
-    def _merges(self) -> None:
+    def _find_merges(self) -> None:
         """Junction lanes (entries) that join a lane which also continues a non-junction lane (the ring)
         yield there; each gets a stop line: the farthest front-bumper position [m] along it from which a
         vehicle stays STOP_CLEARANCE outside the priority lanes."""
@@ -200,18 +244,13 @@ class TrafficMap:
             if m >= 0:
                 self.starts_at_merge[m] = True
                 self.ends_at_merge[[p for p in self.predecessors[m] if p != y]] = True
-        self.yield_lane = np.array([r[0] for r in rows], dtype=np.int64)  # entering lane (-1: none)
-        self.yield_merge = np.array([r[1] for r in rows], dtype=np.int64)  # the lane it joins
-        self.yield_stop = np.array([r[2] for r in rows])  # [m] front-bumper stop position along it
-        self.merge_xy = np.array([rm.lanes[r[1]].centre[0] if r[1] >= 0 else (0.0, 0.0) for r in rows])  # [m]
-        if self.yield_lane[0] < 0:
-            self.yield_lane = self.yield_lane[:0]
-            self.yield_merge = self.yield_merge[:0]
-            self.yield_stop = self.yield_stop[:0]
-            self.merge_xy = self.merge_xy[:0]
+        merges = Merges(np.array([r[0] for r in rows], dtype=np.int64), np.array([r[2] for r in rows]),
+                        np.array([r[1] for r in rows], dtype=np.int64),
+                        np.array([rm.lanes[r[1]].centre[0] if r[1] >= 0 else (0.0, 0.0) for r in rows]))
+        self.merges = Merges(*(a[:0] for a in merges)) if merges.lane[0] < 0 else merges
 
     # --- crosswalks --------------------------------------------------------------------------------------
-    def _crossings(self) -> None:
+    def _find_crossings(self) -> None:
         """Where lane centre lines cross crosswalks: lane, s interval [m], crosswalk, u interval [m] (the
         lane's strip in the crosswalk's walking coordinate u, 0 at the crosswalk centre)."""
         rm = self.road_map
@@ -236,10 +275,8 @@ class TrafficMap:
                 rows.append((i, s_in.min() - 0.25, s_in.max() + 0.25, c, uc - lane.width / 2,
                              uc + lane.width / 2))
         table = np.array(rows, dtype=float).reshape(-1, 6)
-        self.cross_lane = table[:, 0].astype(np.int64)
-        self.cross_s = table[:, 1:3]  # [m] (K,2) interval along the lane
-        self.cross_cw = table[:, 3].astype(np.int64)
-        self.cross_u = table[:, 4:6]  # [m] (K,2) interval along the crosswalk
+        self.crossings = Crossings(table[:, 0].astype(np.int64), table[:, 1:3], table[:, 3].astype(np.int64),
+                                   table[:, 4:6], self.cw_centre)
 
     # --- spawn points ------------------------------------------------------------------------------------
     def _spawn_points(self) -> None:
@@ -249,9 +286,9 @@ class TrafficMap:
         lane = np.array([i for i, _ in candidates], dtype=np.int64)
         s = np.array([s for _, s in candidates], dtype=float)
         on_cw = np.zeros(len(s), dtype=bool)
-        for k in range(len(self.cross_lane)):
-            lo, hi = self.cross_s[k]
-            on_cw |= (lane == self.cross_lane[k]) & (s > lo - 3.0) & (s < hi + 3.0)
+        for k in range(len(self.crossings.lane)):
+            lo, hi = self.crossings.s[k]
+            on_cw |= (lane == self.crossings.lane[k]) & (s > lo - 3.0) & (s < hi + 3.0)
         lane, s = lane[~on_cw], s[~on_cw]
         x, y, h = self.lookup(lane, s)
         keep: list[int] = []
@@ -266,3 +303,58 @@ class TrafficMap:
         self.spawn_lane = lane[keep].astype(np.int64)
         self.spawn_s = s[keep]
         self.spawn_xy = np.column_stack([x[keep], y[keep]])
+
+
+@inline
+def find_segment(g, gq: float, first: int, last: int) -> int:
+    """The segment (first..last: a lane's) holding flat arc length gq [m]: np.searchsorted(g, gq, side="right") - 1
+    clamped to [first, last], searched among the lane's own vertices (the same index: g is sorted, so the vertices
+    before `first` and after `last` only move the unclamped index outside [first, last])."""
+    if gq != gq:  # NaN sorts past the end
+        return last
+    lo, hi = first, last + 1
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if g[mid] <= gq:
+            lo = mid + 1
+        else:
+            hi = mid
+    return max(lo - 1, first)
+
+
+@inline
+def flat_position(lines, lane: int, s: float) -> float:
+    """The flat arc length [m] of s [m] on `lane`, s clamped to the lane (NaN kept)."""
+    return lines.base[lane] + minimum(maximum(s, 0.0), lines.length[lane])
+
+
+@inline
+def segment_at(lines, lane: int, s: float) -> tuple[int, float]:
+    """The segment of `lane` at s [m] (clamped to the lane) and the share u of it passed there."""
+    gq = flat_position(lines, lane, s)
+    seg = find_segment(lines.g, gq, lines.first[lane], lines.last_segment[lane])
+    return seg, (gq - lines.g[seg]) * lines.inv[seg]
+
+
+@jit
+def centre_points(lines, lane, s):
+    """Centre-line x, y [m] and heading [rad] (K,) at s (K,) [m] on `lane` (K,) (s clamped to the lane)."""
+    n = len(s)
+    x, y, h = np.empty(n), np.empty(n), np.empty(n)
+    for k in range(n):
+        seg, u = segment_at(lines, lane[k], s[k])
+        x[k], y[k] = lines.x0[seg] + u * lines.dx[seg], lines.y0[seg] + u * lines.dy[seg]
+        h[k] = lines.h0[seg] + u * lines.dh[seg]
+    return x, y, h
+
+
+@inline
+def curve_speed(lines, lane, s):
+    """The anticipated curve speed [m/s] (the curves ahead on `lane`, at `anticipation` braking; the next lane's
+    are added with `entry_speed`) and the curvature [1/m] (F,) at s (F,) [m] on `lane` (F,)."""
+    n = len(s)
+    speed, kappa = np.empty(n), np.empty(n)
+    for f in range(n):
+        seg, u = segment_at(lines, lane[f], s[f])
+        speed[f], kappa[f] = lines.v0[seg] + u * lines.dv[seg], lines.k0[seg] + u * lines.dk[seg]
+    return speed, kappa

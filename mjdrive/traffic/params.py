@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -109,6 +110,9 @@ class TrafficConfig(Config):
     decision_period: float = param(0.6, "behaviour updates (about a driver's reaction time)", "s", gt=0.0, le=5.0)
     substep: float = param(0.02, "pose resolution (mocap written at this period)", "s", gt=0.0, le=0.2)
 
+    def constants(self) -> Constants:
+        return Constants(*(float(getattr(self, name)) for name in Constants._fields))
+
     def check(self) -> None:
         for name in ("pedestrian_wait", "desired_speed"):
             pair = getattr(self, name)
@@ -117,6 +121,13 @@ class TrafficConfig(Config):
         for name in ("lane_change_intentions", "turn_intentions", "merge_intentions", "roundabout_intentions"):
             if sum(getattr(self, name)) <= 0:
                 raise ConfigError(f"{name}={getattr(self, name)}: the shares must not all be zero")
+
+
+# TrafficConfig's numbers as the kernels take them (`TrafficConfig.constants`; units as there)
+Constants = NamedTuple("Constants", [(name, float) for name in (
+    "min_gap", "stop_gap", "max_decel", "accept_gap", "merge_clearance", "merge_speed", "yield_speed", "corridor_range",
+    "corridor_margin", "lane_change_length", "spawn_clear", "crosswalk_margin", "spawn_rate", "critical_gap_crossing",
+    "impatience", "critical_gap_merge", "signal_time", "safe_decel", "courtesy_range", "decision_period")])
 
 
 @dataclass

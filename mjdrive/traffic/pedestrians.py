@@ -1,103 +1,135 @@
-"""Pedestrians: wait at the kerb, cross on their track when no vehicle could fail to stop, and the
-crossings they occupy (vehicles stop before them)."""
+"""Pedestrians: wait at the kerb, cross on their track when no vehicle could fail to stop, and the crossings they
+occupy (vehicles stop before them: `crosswalk_stop`)."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
-from mjdrive.traffic import state_kernels
-from mjdrive.traffic.kernels import KERNELS
+from mjdrive.compiled import inline, jit, maximum, minimum
+from mjdrive.traffic.params import N_TRACKS
 from mjdrive.traffic.spawning import uniform
+from mjdrive.traffic.state import Pedestrians
 
-if TYPE_CHECKING:
-    from mjdrive.traffic.model import Traffic
+BAND_MARGIN = 0.3  # [m] a crossing is occupied by a walker this far beyond the lane's band (plus crosswalk_margin)
+EGO_REACH = 7.0  # [m] pedestrians do not start while the ego's centre is this close to the crosswalk's centre ...
+EGO_REACH_PER_SPEED = 3.0  # [s] ... plus this times its speed
+SLOW_LEADER = 3.0  # [m/s] a leader slower than this may leave no room beyond a crosswalk
 
 
-def commit_pedestrians(t: Traffic, t_end: float) -> None:
-    """The pedestrians' state after `t_end` [s] of the plan: walkers move on, those at the far kerb stop, turn and
-    draw a new wait (`state_kernels.commit_pedestrians` with numba: the same)."""
-    cfg, end = t.config, t._ped_end  # [m] the kerbs along each pedestrian's crosswalk
-    if KERNELS:
-        t.ped_u, t.ped_dir, arrived = state_kernels.commit_pedestrians(t.ped_u, t.ped_dir, t.ped_speed, t.ped_walking,
-                                                                       t.ped_wait, end, t_end)
-        if arrived.any():
-            lo, hi = cfg.pedestrian_wait
-            t.ped_wait[arrived] = uniform(t.rng, lo, hi, int(arrived.sum()))
-        return
-    u = np.where(t.ped_walking, t.ped_u + t.ped_dir * t.ped_speed * t_end, t.ped_u)
-    arrived = t.ped_walking & (t.ped_dir * u >= end)
-    t.ped_u = np.clip(u, -end, end)
-    t.ped_walking &= ~arrived
-    t.ped_dir = np.where(arrived, -t.ped_dir, t.ped_dir)
-    t.ped_wait -= t_end
+def on_crosswalks(traffic_map, slots: np.ndarray, kerb: float) -> Pedestrians:
+    """Pedestrians in `slots` on the map's crosswalks, in turn, each on one of N_TRACKS tracks (so two never
+    overlap), waiting `kerb` [m] beyond the crosswalk's end; at rest, for `reset` to place."""
+    m, n = traffic_map, len(slots)
+    if n and m.n_crosswalks == 0:
+        raise ValueError("pedestrians need a road map with crosswalks")
+    if n > N_TRACKS * max(m.n_crosswalks, 1):
+        raise ValueError(f"at most {N_TRACKS} pedestrians per crosswalk ({N_TRACKS * m.n_crosswalks} on this map), "
+                         f"got {n}")
+    cw = np.arange(n) % max(m.n_crosswalks, 1)
+    tracks = (np.arange(n) // max(m.n_crosswalks, 1)) % N_TRACKS
+    offset = (tracks - 1.0) * m.cw_width[cw] / N_TRACKS if n else np.zeros(0)  # [m] along the road
+    return Pedestrians(slots, cw, m.cw_half_length[cw] + kerb, m.cw_centre[cw].reshape(-1, 2),
+                       m.cw_along[cw].reshape(-1, 2), (offset[:, None] * m.cw_across[cw]).reshape(-1, 2),
+                       m.cw_heading[cw], np.zeros(n), np.ones(n), np.zeros(n, dtype=bool), np.zeros(n), np.zeros(n))
+
+
+def new_waits(pedestrians: Pedestrians, arrived: np.ndarray, wait: tuple[float, float],
+              rng: np.random.Generator) -> None:
+    """Pedestrians who `arrived` at the far kerb (`commit_pedestrians`) draw a new wait [s] (uniform in `wait`)."""
     if arrived.any():
-        lo, hi = cfg.pedestrian_wait
-        t.ped_wait[arrived] = uniform(t.rng, lo, hi, int(arrived.sum()))
+        lo, hi = wait
+        pedestrians.wait[arrived] = uniform(rng, lo, hi, int(arrived.sum()))
 
 
-def pedestrian_starts(t: Traffic, ctx: dict) -> None:
-    """Waiting pedestrians whose wait is over cross when no vehicle could fail to stop before them
-    (`state_kernels.pedestrian_starts` with numba: the same)."""
-    m = t.map
-    if KERNELS:
-        ego = t.ego
-        state_kernels.pedestrian_starts(
-            t.ped_walking, t.ped_wait, t.ped_cw, ctx["offset"], ctx["s"], ctx["v"], ctx["length"], t._b_agents,
-            m.cross_lane, m.cross_s, m.cross_cw, m.cw_centre, ego is not None, ego.x if ego is not None else 0.0,
-            ego.y if ego is not None else 0.0, 7.0 + 3.0 * max(ego.speed, 0.0) if ego is not None else 0.0)
+@inline
+def commit_pedestrians(pedestrians, t_end):
+    """The walkers move `t_end` [s] on along their crosswalk (clipped to the kerbs), those who reached the far kerb
+    stop and turn; every wait runs down by t_end (in place). Returns who arrived (for their new waits' draws)."""
+    p_ = pedestrians
+    n = len(p_.u)
+    arrived = np.zeros(n, dtype=np.bool_)
+    for p in range(n):
+        u = p_.u[p] + p_.direction[p] * p_.speed[p] * t_end if p_.walking[p] else p_.u[p]
+        arrived[p] = p_.walking[p] and p_.direction[p] * u >= p_.end[p]
+        lo, hi = -p_.end[p], p_.end[p]
+        u = u if (u != u or u > lo) else lo  # np.clip's maximum then minimum
+        p_.u[p] = u if (u != u or u < hi) else hi
+        p_.walking[p] = p_.walking[p] and not arrived[p]
+        if arrived[p]:
+            p_.direction[p] = -p_.direction[p]
+        p_.wait[p] -= t_end
+    return arrived
+
+
+@jit
+def start_crossing(pedestrians, agents, b_agents, crossings, ego_x, ego_y, ego_reach):
+    """Waiting pedestrians whose wait is over start walking (in place) unless an agent (A,) is on their crosswalk or
+    too close to stop before it (braking at b_agents (A,) [m/s^2]), or the ego's centre (x, y) [m] is within
+    `ego_reach` [m] of the crosswalk's centre (no ego: a negative reach)."""
+    p_ = pedestrians
+    ready = np.empty(len(p_.walking), dtype=np.bool_)
+    any_ready = False
+    for p in range(len(p_.walking)):
+        ready[p] = not p_.walking[p] and p_.wait[p] <= 0.0
+        any_ready |= ready[p]
+    if not any_ready:
         return
-    ready = ~t.ped_walking & (t.ped_wait <= 0.0)
-    if not ready.any():
-        return
-    unsafe = threatened_crosswalks(t, ctx)
-    if t.ego is not None:
-        dist = np.hypot(m.cw_centre[:, 0] - t.ego.x, m.cw_centre[:, 1] - t.ego.y)
-        unsafe |= dist < 7.0 + 3.0 * max(t.ego.speed, 0.0)
-    t.ped_walking |= ready & ~unsafe[t.ped_cw]
+    s, v, length = agents.s, agents.v, agents.length
+    unsafe = np.zeros(len(crossings.centre), dtype=np.bool_)
+    for a in range(len(s)):
+        stopping = v[a] * v[a] / (2 * b_agents[a]) + v[a] + 1.0
+        for k in range(len(crossings.lane)):
+            base = agents.offset[a, crossings.lane[k]]
+            front = base + crossings.s[k, 0] - (s[a] + length[a] / 2)
+            rear_past = base + crossings.s[k, 1] - (s[a] - length[a] / 2)
+            if rear_past > 0 and front < stopping:
+                unsafe[crossings.crosswalk[k]] = True
+    if ego_reach >= 0:
+        for c in range(len(crossings.centre)):
+            if np.hypot(crossings.centre[c, 0] - ego_x, crossings.centre[c, 1] - ego_y) < ego_reach:
+                unsafe[c] = True
+    for p in range(len(p_.walking)):
+        if ready[p] and not unsafe[p_.crosswalk[p]]:
+            p_.walking[p] = True
 
 
-def threatened_crosswalks(t: Traffic, ctx: dict) -> np.ndarray:
-    """Crosswalks (C,) that a vehicle on the lane graph is on, or too close to stop comfortably before."""
-    m = t.map
-    out = np.zeros(m.n_crosswalks, dtype=bool)
-    if not len(m.cross_lane):
-        return out
-    s, v, length = ctx["s"], ctx["v"], ctx["length"]
-    base = ctx["offset"][:, m.cross_lane]  # (A, K)
-    front = base + m.cross_s[None, :, 0] - (s + length / 2)[:, None]  # bumper to the crossing [m]
-    rear_past = base + m.cross_s[None, :, 1] - (s - length / 2)[:, None]  # > 0: rear not yet past it
-    stopping = v * v / (2 * t._b_agents) + v + 1.0
-    threat = (rear_past > 0) & (front < stopping[:, None])  # inf base: never
-    np.logical_or.at(out, m.cross_cw, threat.any(axis=0))
+@inline
+def occupied_crossings(pedestrians, crossings, margin):
+    """Crossings (K,) with a pedestrian walking in the lane's band (+ margin [m]) or towards it."""
+    p_ = pedestrians
+    n_k = len(crossings.lane)
+    out = np.zeros(n_k, dtype=np.bool_)
+    for k in range(n_k):
+        lo, hi = crossings.u[k, 0] - margin, crossings.u[k, 1] + margin
+        for p in range(len(p_.walking)):
+            if p_.walking[p] and p_.crosswalk[p] == crossings.crosswalk[k]:
+                if (p_.u[p] < hi) if p_.direction[p] > 0 else (p_.u[p] > lo):
+                    out[k] = True
     return out
 
 
-def occupied_crossings(t: Traffic) -> np.ndarray:
-    """Crossings (K,) with a pedestrian walking in the lane's band (+ margin) or towards it
-    (`state_kernels.occupied_crossings` with numba: the same)."""
-    m, cfg = t.map, t.config
-    if KERNELS:
-        return state_kernels.occupied_crossings(t.ped_walking, t.ped_cw, t.ped_u, t.ped_dir, m.cross_cw, m.cross_u,
-                                                cfg.crosswalk_margin + 0.3)
-    on = t.ped_walking[None] & (t.ped_cw[None] == m.cross_cw[:, None])  # (K, P)
-    u, direction = t.ped_u[None], t.ped_dir[None]
-    margin = cfg.crosswalk_margin + 0.3
-    lo, hi = m.cross_u[:, :1] - margin, m.cross_u[:, 1:] + margin
-    not_past = np.where(direction > 0, u < hi, u > lo)
-    return (on & not_past).any(axis=1)
+@inline
+def crosswalk_stop(offset_f, front, length, crossings, k, blocked, slow_leader, path_gap, margin, min_gap):
+    """A follower's stop line [m] before crossing k (inf: none): where a pedestrian walks in the lane's band
+    (`blocked`), or where the queue ahead (a `slow_leader` path_gap [m] ahead) leaves no room beyond the crosswalk
+    (keep it clear); offset_f: the follower's row of `Agents.offset`, front: its front bumper [m]."""
+    stop = offset_f[crossings.lane[k]] + (crossings.s[k, 0] - margin) - front
+    beyond = stop + (crossings.s[k, 1] - crossings.s[k, 0] + 2 * margin)
+    no_room = slow_leader and path_gap - beyond < length + min_gap
+    return stop if (no_room or blocked) and stop > -0.5 else np.inf
 
 
-def pedestrian_poses(t: Traffic, times: np.ndarray):
-    """Poses (S, P, 3), yaw (S, P) and speed (S, P) of the pedestrians at `times` (S, 1) [s] ahead."""
-    end = t._ped_end[None]
-    walking = t.ped_walking[None]
-    u = np.minimum(np.maximum(t.ped_u[None] + (t.ped_dir * t.ped_speed * t.ped_walking)[None] * times,
-                              -end), end)
-    xy = t._ped_centre[None] + u[..., None] * t._ped_along[None] + t._ped_side[None]
-    pos = np.concatenate([xy, np.zeros(xy.shape[:-1] + (1,))], axis=-1)
-    yaw = np.empty(u.shape)
-    yaw[:] = t._ped_heading + (t.ped_dir < 0) * np.pi
-    speed = np.where(walking & (np.abs(u) < end), t.ped_speed[None], 0.0)
-    return pos, yaw, speed
+@inline
+def place_pedestrians(pedestrians, times, out):
+    """The pedestrians' poses at `times` (S,) [s] ahead into `out` (Poses (S, N, ...), at their slots)."""
+    p_ = pedestrians
+    for i in range(len(times)):
+        t = times[i]
+        for p in range(len(p_.u)):
+            slot, end = p_.slot[p], p_.end[p]
+            u = minimum(maximum(p_.u[p] + (p_.direction[p] * p_.speed[p] * p_.walking[p]) * t, -end), end)
+            out.pos[i, slot, 0] = p_.centre[p, 0] + u * p_.along[p, 0] + p_.side[p, 0]
+            out.pos[i, slot, 1] = p_.centre[p, 1] + u * p_.along[p, 1] + p_.side[p, 1]
+            out.pos[i, slot, 2] = 0.0
+            out.yaw[i, slot] = p_.heading[p] + (p_.direction[p] < 0) * np.pi
+            out.speed[i, slot] = p_.speed[p] if p_.walking[p] and abs(u) < end else 0.0

@@ -1,5 +1,6 @@
-"""Re-simulate a recorded episode from its metadata (task, kwargs, RNG state or seed) and its actions, and
-check every logged state (time, qpos, qvel, act, mocap) and reward bit for bit; optionally render a video."""
+"""Re-simulate a recorded episode from its metadata (task, kwargs, RNG state or seed) and its actions in a
+gymnasium env, and check every logged state (time, qpos, qvel, act, mocap) and reward bit for bit; optionally
+render a video. (Above the logs it reads: `mjdrive.record` writes and reads them, this rebuilds the env.)"""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mjdrive.envs.gym_env import DrivingGymEnv
 from mjdrive.record.reader import EpisodeFileError, read_episode
 from mjdrive.record.recorder import decode_rng_state, package_versions
 
@@ -70,7 +72,6 @@ def replay(path: str | Path, video: str | Path | None = None, progress: bool = F
     """Rebuild the env of `path`, replay its actions and compare (`progress`: a bar over the steps on
     stderr). Raises EpisodeFileError when the file cannot be replayed (not an episode, no seed or RNG state,
     kwargs that were not JSON)."""
-    from mjdrive.envs.gym_env import DrivingGymEnv
     from mjdrive.progress import Progress
 
     episode = read_episode(path, topics={"/action", "/physics", "/reward"})
