@@ -82,7 +82,7 @@ def test_a_stop_ends_at_rest_before_the_line_and_never_past_it(road, speed, line
         farthest = max(farthest, road.front)
     assert abs(road.speed) < 0.01
     assert line - 0.3 <= road.front <= line and farthest <= line
-    assert line - road.front == pytest.approx(STOP_MARGIN, abs=0.05)
+    assert line - road.front == pytest.approx(STOP_MARGIN, abs=0.1)  # OSQP's accuracy: 1e-3 of the distance
     metrics = road.comfort.metrics(DT)
     assert metrics.jerk_max < 4.13 and metrics.accel_p95 < 2.5  # nuPlan's longitudinal jerk bound
 

@@ -6,28 +6,33 @@ State x_k = (s_k, v_k, a_k): position [m] along the path (0 = the front bumper n
     s+ = s + v h + a h^2 / 2 + j h^3 / 6,   v+ = v + a h + j h^2 / 2,   a+ = a + j h
 
 Cost: sum over the horizon of w_v (v_k - v_ref_k)^2 + w_a a_k^2 + w_j j_k^2, plus the slacks' penalties.
-Hard bounds (the comfort envelope): a_k in [accel_min, accel_max], j_k in [jerk_min, jerk_max]. Soft constraints,
-each relaxed by a slack that costs far more than anything else (so the problem is always feasible):
+Hard bounds: the comfort envelope, a_k in [accel_min, accel_max] and j_k in [jerk_min, jerk_max], and v_k >= 0 (the
+car does not reverse; the initial acceleration is limited so that it can always stop without reversing,
+`initial_accel`). Soft constraints, each relaxed by a slack that costs far more than anything else (so the problem
+is always feasible):
 
     follow:  s_k + T v_k <= leader_k - d0      (the time gap T and standstill gap d0 to the leader's rear, with
                                                 the leader's predicted motion: constant acceleration, never
                                                 reversing)
     stop:    s_k <= stop                       (come to rest before a point: a give-way line, a lane's end)
-    0 <= v_k <= v_ref_k                        (the reference is the most the route allows; and a triple
-                                                integrator must not plan reversing)
+    v_k <= v_ref_k                             (the reference is the most the route allows)
 
 The three modes of study 002's operative level (§4.3) are which of these bind: cruise (track v_ref), follow
 (the leader) and stop (the point). A stop also lowers v_ref to the comfortable stopping profile
 sqrt(2 b (stop - s)), so the car brakes early and gently instead of late and hard.
 
 OSQP: the matrices are built once (fixed sparsity); a solve updates only the vectors (q, l, u) and starts from the
-previous solution (OSQP's warm start); a solution is moved onto the hard bounds it exceeds within OSQP's tolerance
-and its states integrated exactly (`plan_within_bounds`). For the same inputs a solver gives the same bits: the
-settings leave nothing to time (rho adapts every `adaptive_rho_interval` iterations, no time limit), and `reset`
+previous solution (OSQP's warm start); a solution is moved onto the hard bounds it exceeds (within OSQP's tolerance,
+or more when it stopped early) and its states integrated exactly (`plan_within_bounds`). A comfort solve runs at
+most ITERATION_BUDGET iterations (a real-time budget, as real-time MPC schemes bound their iterations): most
+converge in 10-30; the few that reach the budget (about 3% of the control periods of a drive in traffic, at changes
+of leader or mode) give a plan whose first acceleration is within about 0.2 m/s^2 of the converged one (0.02 at the
+99th percentile), and the next period's solve goes on from it. For the same inputs a solver gives the same bits:
+the settings leave nothing to time (rho adapts every `adaptive_rho_interval` iterations, no time limit), and `reset`
 sets the solver up anew so every episode starts from the same state. Fallbacks: when the comfort envelope cannot
 keep the car behind a leader's rear by `emergency_gap` or before a stop point (e.g. a vehicle cutting in), the same
-programme is solved again with the emergency bounds; if OSQP does not report a solution, the plan is a comfortable
-braking to rest (`MPCPlan.fallback`).
+programme is solved again with the emergency bounds, to convergence; if OSQP does not report a solution, the plan is a
+comfortable braking to rest (`MPCPlan.fallback`).
 """
 
 from __future__ import annotations
@@ -46,8 +51,8 @@ from mjdrive.config import Config, ConfigError, param
 INFINITY = osqp.ext_builtin.OSQP_INFTY  # OSQP's infinite bound (1e30)
 MODES = ("cruise", "follow", "stop")  # the plan's mode: the soft constraint that binds first (within BINDING)
 BINDING = 0.1  # [m]
-STOP_TOLERANCE = 0.05  # [m] a comfort plan passing a stop point by less (the solver's tolerance) needs no emergency
-NO_LIMIT = 1e9  # [m] a position bound that never binds
+INTRUSION_TOLERANCE = 0.05  # [m] a comfort plan passing a stop point, or the emergency gap, by less needs no emergency
+NO_LIMIT = 1e30  # [m] a position bound that never binds: OSQP_INFTY (OSQP leaves it out of its infeasibility checks)
 
 
 @dataclass(frozen=True)
@@ -79,9 +84,12 @@ class MPCConfig(Config):
                               "accel_min and emergency_jerk_max >= jerk_max")
 
 
+ITERATION_BUDGET = 100  # OSQP iterations of a comfort solve: a real-time budget (see the module doc)
 SOLVER_SETTINGS = dict(  # fixed: OSQP's result depends only on the problem sequence since `setup`
     eps_abs=1e-3, eps_rel=1e-3, rho=1.0, check_termination=5, adaptive_rho=True, adaptive_rho_interval=25,
-    max_iter=2000, polishing=False, warm_starting=True, verbose=False, time_limit=1e10)  # 1e10 s: none
+    max_iter=4000, polishing=False, warm_starting=True, verbose=False, time_limit=1e10)  # 1e10 s: none
+_USABLE = (osqp.ext_builtin.OSQP_SOLVED, osqp.ext_builtin.OSQP_SOLVED_INACCURATE,
+           osqp.ext_builtin.OSQP_MAX_ITER_REACHED)  # statuses whose solution a plan starts from
 
 
 class OSQPSolver:
@@ -97,14 +105,32 @@ class OSQPSolver:
             setattr(options, name, value)
         self._solver = ext.OSQPSolver(ext.CSC(p.astype(np.float64)), q, ext.CSC(a.astype(np.float64)), l, u,
                                       a.shape[0], a.shape[1], options)
+        self._budgets: dict[int, object] = {}  # settings by iteration budget
+        self._budget = options.max_iter
 
-    def solve(self, q: np.ndarray, l: np.ndarray, u: np.ndarray) -> tuple[np.ndarray | None, int]:
-        """(the solution, or None when OSQP does not report it solved; its iterations) for the new vectors."""
+    def solve(self, q: np.ndarray, l: np.ndarray, u: np.ndarray, budget: int | None = None
+              ) -> tuple[np.ndarray | None, int, bool]:
+        """For the new vectors: the solution (None when OSQP gives none it could use: infeasible, non-finite), its
+        iterations, and whether it converged (else it stopped at the iteration budget, at most `budget` iterations
+        (None: the settings' max_iter), or reports it inaccurate)."""
         solver = self._solver
+        if budget is not None and budget != self._budget:
+            self._set_budget(budget)
         solver.update_data_vec(q=q, l=l, u=u)
         solver.solve()
         info = solver.info
-        return (solver.solution.x if info.status_val == osqp.ext_builtin.OSQP_SOLVED else None), int(info.iter)
+        x = solver.solution.x if info.status_val in _USABLE else None
+        if x is not None and not np.all(np.isfinite(x)):
+            x = None
+        return x, int(info.iter), info.status_val == osqp.ext_builtin.OSQP_SOLVED
+
+    def _set_budget(self, budget: int) -> None:
+        if budget not in self._budgets:
+            options = self._solver.get_settings()
+            options.max_iter = budget
+            self._budgets[budget] = options
+        self._solver.update_settings(self._budgets[budget])
+        self._budget = budget
 
 
 @dataclass(frozen=True)
@@ -138,7 +164,9 @@ class MPCPlan:
     mode: str  # "cruise", "follow" or "stop": the constraint that binds first (cruise: none)
     status: str  # "solved", "emergency" (solved with the emergency bounds) or "fallback" (OSQP failed)
     iterations: int
-    intrusion: float = 0.0  # [m] how far it passes a stop point or comes within emergency_gap of a leader (> 0)
+    intrusion: float = 0.0  # [m] how far it passes a stop point or comes within emergency_gap of a leader, less
+    #                         INTRUSION_TOLERANCE (> 0: solved again with the emergency bounds)
+    converged: bool = True  # False: OSQP stopped at ITERATION_BUDGET (the plan still meets the hard bounds)
 
     def accel_at(self, t: float, step: float) -> float:
         """The planned acceleration [m/s^2] t [s] from now (piecewise linear: constant jerk per step)."""
@@ -195,9 +223,8 @@ class LongitudinalMPC:
             put(self._j(k), 1.0)
             row += 1
         self._rows_speed = row
-        for k in range(1, n + 1):  # v_k + mu_k >= 0
+        for k in range(1, n + 1):  # v_k >= 0 (hard: `initial_accel` keeps it feasible)
             put(self._x(k, 1), 1.0)
-            put(self._speed_slack(k - 1), 1.0)
             row += 1
         self._rows_limit = row
         for k in range(1, n + 1):  # v_k - mu_k <= v_max_k
@@ -232,7 +259,7 @@ class LongitudinalMPC:
         self._l = np.full(row, -INFINITY)
         self._u = np.full(row, INFINITY)
         self._l[: self._n_eq] = self._u[: self._n_eq] = 0.0
-        self._l[self._rows_speed: self._rows_stop] = 0.0
+        self._l[self._rows_speed: self._rows_limit] = 0.0  # v_k >= 0 (the limit rows have no lower bound)
         self._l[self._rows_slack:] = 0.0
         self._set_bounds(emergency=False)
         self.solver: OSQPSolver | None = None
@@ -258,10 +285,12 @@ class LongitudinalMPC:
         self._emergency = emergency
 
     def initial_accel(self, speed: float, accel: float) -> float:
-        """The acceleration the plan starts from: `accel` within the comfort bounds, and no braking at rest (a
-        stopped car does not decelerate: without this a plan from rest would have to reverse)."""
+        """The acceleration the plan starts from: `accel` within the comfort bounds, and no more braking than the
+        jerk bound can take back before the car stands (-sqrt(2 j_max v)): a car that stops does not go on
+        decelerating, and a plan from there must stop without reversing (v >= 0 is a hard bound)."""
         c = self.config
-        return min(max(accel, c.accel_min, -max(speed, 0.0) / c.step), c.accel_max)
+        v = max(speed, 0.0)
+        return min(max(accel, c.accel_min, -v / c.step, -math.sqrt(2.0 * c.jerk_max * v)), c.accel_max)
 
     def solve(self, speed: float, accel: float, v_ref: np.ndarray | float, stop: float | None = None,
               leaders: Sequence[Leader] = ()) -> MPCPlan:
@@ -294,7 +323,8 @@ class LongitudinalMPC:
         return plan if plan is not None else self.fallback(v0, a0)
 
     def _solve(self, emergency: bool = False) -> MPCPlan | None:
-        solution, iterations = self.solver.solve(self._q, self._l, self._u)
+        budget = SOLVER_SETTINGS["max_iter"] if emergency else min(ITERATION_BUDGET, SOLVER_SETTINGS["max_iter"])
+        solution, iterations, converged = self.solver.solve(self._q, self._l, self._u, budget)
         if solution is None:
             return None
         n = self.config.horizon
@@ -306,7 +336,7 @@ class LongitudinalMPC:
             self._u[self._rows_follow: self._rows_follow + n], c.headway, c.standstill_gap - c.emergency_gap,
             states, jerks)
         return MPCPlan(states[:, 0], states[:, 1], states[:, 2], jerks, slack, MODES[mode],
-                       "emergency" if emergency else "solved", iterations, intrusion)
+                       "emergency" if emergency else "solved", iterations, intrusion, converged)
 
     def fallback(self, speed: float, accel: float) -> MPCPlan:
         """Braking to rest at the comfort bound, the jerk bound permitting: the plan when OSQP gives none."""
@@ -320,7 +350,7 @@ class LongitudinalMPC:
             a[k + 1] = a[k] + j[k] * h
             v[k + 1] = max(v[k] + a[k] * h + 0.5 * j[k] * h * h, 0.0)
             s[k + 1] = s[k] + 0.5 * (v[k] + v[k + 1]) * h
-        return MPCPlan(s, v, a, j, math.inf, "stop", "fallback", 0)
+        return MPCPlan(s, v, a, j, math.inf, "stop", "fallback", 0, converged=False)
 
 
 @jit
@@ -330,7 +360,8 @@ def plan_within_bounds(initial, jerks, h, a_min, a_max, j_max, stop, follow, hea
     into `out` (N,): a plan that meets its bounds and its dynamics to rounding. Returns its largest violation [m]
     of the position constraints s_k <= stop_k and s_k + headway v_k <= follow_k; its mode (an index of MODES: the
     constraint within BINDING of binding at the earliest step; cruise if none); and its intrusion [m]: how far it
-    passes a stop point or comes nearer than follow_k + `near` (a leader's rear less the emergency gap)."""
+    passes a stop point or comes nearer than follow_k + `near` (a leader's rear less the emergency gap), counted
+    from where the car is when it is past either already (standing there is no intrusion)."""
     s, v, a = initial[0], initial[1], initial[2]
     states[0, 0], states[0, 1], states[0, 2] = s, v, a
     slack, mode, intrusion = 0.0, 0, -np.inf
@@ -342,7 +373,8 @@ def plan_within_bounds(initial, jerks, h, a_min, a_max, j_max, stop, follow, hea
         states[k + 1, 0], states[k + 1, 1], states[k + 1, 2] = s, v, a
         stop_room, follow_room = stop[k] - s, follow[k] - s - headway * v
         slack = max(slack, -stop_room, -follow_room)
-        intrusion = max(intrusion, -stop_room - STOP_TOLERANCE, s - follow[k] - near)
+        # what the plan itself moves into (a point already behind the bumper counts from where the car is)
+        intrusion = max(intrusion, s - max(stop[k], 0.0), s - max(follow[k] + near, 0.0))
         if mode == 0 and min(stop_room, follow_room) < BINDING:
             mode = 2 if stop_room <= follow_room else 1
-    return slack, mode, intrusion
+    return slack, mode, intrusion - INTRUSION_TOLERANCE
