@@ -87,7 +87,7 @@ def announce_compilation() -> None:
         return
     _announced = True
     if not any(numba_cache_dir().rglob("*.nbi")):
-        print(f"mjdrive: compiling the kernels once for this machine (about 30 s; cache {numba_cache_dir()})",
+        print(f"mjdrive: compiling the kernels once for this machine (about 35 s; cache {numba_cache_dir()})",
               file=sys.stderr, flush=True)
 
 
