@@ -50,7 +50,20 @@ def inline(fn: Callable) -> Callable:
     return fn if INTERPRETED else njit(inline="always", **OPTIONS)(fn)
 
 
-@inline
+def helper(fn: Callable) -> Callable:
+    """A large part of a kernel, compiled on its own and called from it (not inlined: an inlined copy of every large
+    part would make one function that LLVM optimises for minutes); interpreted: `fn` itself."""
+    if INTERPRETED:
+        return fn
+    compiled = njit(**OPTIONS)(fn)
+    HELPERS.add(compiled)
+    return compiled
+
+
+HELPERS: set = set()  # the `helper`s (kernels call them; Python does not)
+
+
+@helper
 def maximum(a: float, b: float) -> float:
     """np.maximum of two floats (NaN wins), for kernels."""
     if a != a or a >= b:
@@ -58,7 +71,7 @@ def maximum(a: float, b: float) -> float:
     return b
 
 
-@inline
+@helper
 def minimum(a: float, b: float) -> float:
     """np.minimum of two floats (NaN wins), for kernels."""
     if a != a or a <= b:
@@ -74,7 +87,7 @@ def announce_compilation() -> None:
         return
     _announced = True
     if not any(numba_cache_dir().rglob("*.nbi")):
-        print(f"mjdrive: compiling the kernels once for this machine (about 30 s; cache {numba_cache_dir()})",
+        print(f"mjdrive: compiling the kernels once for this machine (about 35 s; cache {numba_cache_dir()})",
               file=sys.stderr, flush=True)
 
 

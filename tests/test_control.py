@@ -184,7 +184,7 @@ def test_same_inputs_give_the_same_bits():
 
 
 def test_a_solver_failure_falls_back_to_braking_within_the_comfort_bounds(monkeypatch):
-    monkeypatch.setattr(mpc_module.OSQPSolver, "solve", lambda self, q, l, u, budget=None: (None, 0, False))  # no solution
+    monkeypatch.setattr(mpc_module.OSQPSolver, "solve", lambda self, q, l, u, budget=None: (None, 0, False))
     config = MPCConfig()
     plan = LongitudinalMPC(config).solve(12.0, 0.5, 12.0, stop=40.0)
     assert plan.status == "fallback" and plan.mode == "stop"

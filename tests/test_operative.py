@@ -221,8 +221,8 @@ def test_batched_decision_env_matches_the_single_env_and_logs_replay(tmp_path):
     and a recorded decision episode replays bit for bit, its /operative channel at the control rate."""
     from mjdrive.envs import make_env
     from mjdrive.envs.batched import BatchedEnv
-    from mjdrive.record.reader import read_episode
     from mjdrive.envs.replay import replay
+    from mjdrive.record.reader import read_episode
 
     kwargs = {"decisions": True, "road_users": {"car": 4}, "time_limit": 20.0}
     decisions = np.random.default_rng(3).integers(0, 2, 30)

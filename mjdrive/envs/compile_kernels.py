@@ -13,7 +13,7 @@ import time
 import numpy as np
 
 from mjdrive import suite, vehicle
-from mjdrive.compiled import INTERPRETED, numba_cache_dir
+from mjdrive.compiled import HELPERS, INTERPRETED, numba_cache_dir
 from mjdrive.control import mpc
 from mjdrive.roads import _spatial, lane, route_frame
 from mjdrive.tasks import kernels, stepping
@@ -58,11 +58,11 @@ def compile_kernels() -> float:
 
 
 def uncompiled() -> list[str]:
-    """The kernels (called from Python; not the helpers inlined into others) this process has not compiled or
-    loaded yet: none after `compile_kernels`."""
+    """The kernels (called from Python; not the helpers inlined into others or called by them) this process has not
+    compiled or loaded yet: none after `compile_kernels`."""
     return [f"{module.__name__}.{name}" for module in MODULES for name, fn in vars(module).items()
             if hasattr(fn, "signatures") and fn.py_func.__module__ == module.__name__ and not fn.signatures
-            and fn.targetoptions.get("inline") != "always"]
+            and fn.targetoptions.get("inline") != "always" and fn not in HELPERS]
 
 
 def main() -> int:

@@ -14,7 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from mjdrive.compiled import inline, jit, maximum, minimum
+from mjdrive.compiled import helper, inline, jit, maximum, minimum
 from mjdrive.roads.conflicts import CROSSING, TIE, YIELD_A, YIELD_B, ConflictZones
 from mjdrive.traffic.intentions import MERGE, YIELD
 from mjdrive.traffic.lanes import REFERENCE_HALF_SIZE, footprint_points, polyline_distance
@@ -109,7 +109,7 @@ def _stop_line(lane, other, s_in: float) -> float:
     return float(front[clear[0]]) if len(clear) else float(front[-1])
 
 
-@inline
+@helper
 def can_stop(v: float, to_line: float) -> bool:
     """Whether a vehicle at speed v [m/s], to_line [m] before its give-way line, can stop there braking at most
     CLAIM_DECEL, or stands before it already."""
@@ -208,7 +208,7 @@ def zone_state(agents, vehicles, approaches, c):
             courteous, needed, changing[:n_changing])
 
 
-@inline
+@helper
 def zone_stops(followers, agents, vehicles, approaches, slot_pos, c):
     """Every follower (`Followers`, rows of `agents`) at every approach on its path: its stop line [m] (inf: none), its
     virtual leader's gap [m] and speed [m/s] in a merge, as pairs in follower then approach order (those of follower

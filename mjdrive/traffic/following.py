@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from mjdrive.compiled import inline, jit, maximum, minimum
+from mjdrive.compiled import helper, inline, jit, maximum, minimum
 from mjdrive.traffic.conflicts import zone_stops
 from mjdrive.traffic.lanes import curve_speed
 from mjdrive.traffic.merges import merge_state, merge_stops
@@ -81,7 +81,7 @@ def obstacles_now(vehicles, pedestrian_slots, now, half_size, ego):
     return xy, yaw, speed, hl, hw, row
 
 
-@inline
+@helper
 def _fold(state, gap: float, lead: float, s0: float, v: float, vT: float, den: float, two_b: float):
     """Add one column (gap [m], obstacle speed [m/s], s0 [m]) to a follower's (smallest gap, largest
     interaction, least room) (v: its speed [m/s], vT: v times its headway [m], den: IDM's 2 sqrt(a b) [m/s^2],
@@ -97,7 +97,7 @@ def _fold(state, gap: float, lead: float, s0: float, v: float, vT: float, den: f
     return smallest, strongest, least
 
 
-@inline
+@helper
 def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, kappa, tables, c, accept_gap):
     """For every follower: the smallest gap [m] of its gap table (inf if none), the largest IDM interaction term
     (s*/gap)^2, the least stopping room [m] (gap - s0 + v_lead^2 / 2 max_decel; inf if none) and the distance [m]

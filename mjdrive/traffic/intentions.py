@@ -72,13 +72,13 @@ class LaneRoles(NamedTuple):
 
 
 @functools.lru_cache(maxsize=32)
-def intention_table(cfg) -> tuple[np.ndarray, np.ndarray]:
+def intention_table(cfg, scenarios: int = 4) -> tuple[np.ndarray, np.ndarray]:
     """Each scenario's intention shares of a TrafficConfig as a cumulative distribution (normalised as
     `Generator.choice` normalises p), in a table (I, W) padded with inf (never <= a draw) for `draw_intentions`,
-    and their columns of `Vehicles.intention` (I,)."""
+    and their columns of `Vehicles.intention` (I,) (the first `scenarios` of them: 0 without urban rules)."""
     scenarios = ((LANE_CHANGE, cfg.lane_change_intentions), (CROSSROAD, cfg.turn_intentions),
-                 (MERGE, cfg.merge_intentions), (ROUNDABOUT, cfg.roundabout_intentions))
-    table = np.full((len(scenarios), max(len(shares) for _, shares in scenarios)), np.inf)
+                 (MERGE, cfg.merge_intentions), (ROUNDABOUT, cfg.roundabout_intentions))[:scenarios]
+    table = np.full((len(scenarios), max((len(shares) for _, shares in scenarios), default=0)), np.inf)
     for i, (_, shares) in enumerate(scenarios):
         p = np.asarray(shares, dtype=float)
         if not (np.all(p >= 0) and p.sum() > 0):

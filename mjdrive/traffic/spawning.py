@@ -64,7 +64,7 @@ class Spawner:
         # arrivals at random times (a Poisson demand), not back to back: each idle vehicle is due with this chance
         timed = urban and config.spawn_rate > 0
         self.due_below = config.spawn_rate * config.decision_period if timed else np.inf
-        self.cdfs, self.columns = intention_table(config) if urban else (np.zeros((0, 0)), np.zeros(0, np.int64))
+        self.cdfs, self.columns = intention_table(config) if urban else intention_table(config, scenarios=0)
 
     def spawn(self, vehicles, routes, generation: np.ndarray, now_pos: np.ndarray, ego, rng: np.random.Generator,
               intent_rng: np.random.Generator) -> int:
@@ -94,7 +94,7 @@ class Spawner:
         if not n:
             return
         lane = np.asarray(lane, dtype=np.int64)
-        u_intent = intent_rng.random((len(self.columns), n)) if self.urban else self.cdfs
+        u_intent = intent_rng.random((len(self.columns), n)) if self.urban else np.zeros((0, n))
         u_path = rng.random((PATH - 1, n))
         activate_rows(vehicles, routes, generation, rows, lane, np.asarray(s, dtype=float), u_intent, self.cdfs,
                       self.columns, u_path)
