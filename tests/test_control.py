@@ -183,6 +183,22 @@ def test_same_inputs_give_the_same_bits():
             assert getattr(first, name).tobytes() == getattr(second, name).tobytes()
 
 
+def test_a_reset_solver_gives_the_bits_of_a_fresh_one_whatever_it_solved_before():
+    """Episodes do not depend on the episodes before: OSQP's set-up reads the vectors (its cost scaling reads q),
+    so a reset restores them first."""
+    rng = np.random.default_rng(11)
+    before = [_random_problem(rng) for _ in range(40)]
+    problems = [_random_problem(rng) for _ in range(40)]
+    used = LongitudinalMPC()
+    for problem in before:
+        used.solve(**problem)
+    used.reset()
+    fresh = LongitudinalMPC()
+    for problem in problems:
+        a, b = used.solve(**problem), fresh.solve(**problem)
+        assert a.j.tobytes() == b.j.tobytes() and a.status == b.status
+
+
 def test_a_solver_failure_falls_back_to_braking_within_the_comfort_bounds(monkeypatch):
     monkeypatch.setattr(mpc_module.OSQPSolver, "solve", lambda self, q, l, u, budget=None: (None, 0, False))
     config = MPCConfig()

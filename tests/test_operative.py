@@ -246,3 +246,28 @@ def test_batched_decision_env_matches_the_single_env_and_logs_replay(tmp_path):
     assert len(episode.messages["/operative"]) == 5 * steps and len(episode.messages["/operative/plan"]) == steps
     assert episode.actions().dtype == np.int64
     assert replay(log).match
+
+
+def test_a_decision_episode_does_not_depend_on_the_episodes_before():
+    """Same seed, same trajectory, whatever the env ran before (the operative level's solver is set up anew)."""
+    from mjdrive.envs import make_env
+    from mjdrive.policies import make_policy
+
+    def episode(env, policy, seed):
+        observation, _ = env.reset(seed=seed)
+        speeds = []
+        for _ in range(60):
+            observation, _, terminated, truncated, _ = env.step(policy(observation))
+            speeds.append(env.unwrapped.task.speed)
+            if terminated or truncated:
+                break
+        return np.array(speeds)
+
+    kwargs = {"decisions": True, "time_limit": 30.0}
+    alone_env = make_env("urban", "crossroad", **kwargs)
+    alone = episode(alone_env, make_policy("rules", alone_env, 0), 3)
+    env = make_env("urban", "crossroad", **kwargs)
+    policy = make_policy("rules", env, 0)
+    episode(env, policy, 2)
+    after = episode(env, policy, 3)
+    assert len(alone) > 20 and alone.tobytes() == after.tobytes()

@@ -262,6 +262,7 @@ class LongitudinalMPC:
         self._l[self._rows_speed: self._rows_limit] = 0.0  # v_k >= 0 (the limit rows have no lower bound)
         self._l[self._rows_slack:] = 0.0
         self._set_bounds(emergency=False)
+        self._initial = (self._q.copy(), self._l.copy(), self._u.copy())  # the vectors a solver is set up with
         self.solver: OSQPSolver | None = None
         self.reset()
 
@@ -271,7 +272,10 @@ class LongitudinalMPC:
         return self._a.shape[1], self._a.shape[0], self._a.nnz
 
     def reset(self) -> None:
-        """A fresh solver (warm start and rho as after its set-up): an episode's solves depend only on its inputs."""
+        """A fresh solver set up with the initial vectors (OSQP's scaling reads q at set-up; warm start and rho as
+        after it): an episode's solves depend only on its inputs, not on the episodes before."""
+        self._q[:], self._l[:], self._u[:] = self._initial
+        self._emergency = False
         self.solver = OSQPSolver(self._p, self._q, self._a, self._l, self._u, SOLVER_SETTINGS)
 
     def _set_bounds(self, emergency: bool) -> None:

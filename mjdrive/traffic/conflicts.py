@@ -119,21 +119,20 @@ def can_stop(v: float, to_line: float) -> bool:
 
 @inline
 def zone_state(agents, vehicles, approaches, c):
-    """Every agent (A,) (`Agents`: the vehicles, then the ego, which never waits, is never courteous and is never
-    counted on to stop for a claim) at every approach (R,), for the agents on the approach's other lane (on_lane[r,
-    :n_on[r]]; the other entries are never read): inside the zone (or committed to it), its time to the zone [s],
-    held before its give-way line, able to stop there for a vehicle past its patience, claiming the zone itself,
-    physically in the zone, its time to its give-way line [s], waiting before the zone, its distance to the merge
-    point [m] and whether that is near (A, R); on_lane (R, A), n_on (R,); per agent (A,): how long it has waited
-    [s], whether it opens gaps (courteous), the headway [m] it needs behind a merging vehicle; the vehicles changing
-    lane (rows)."""
+    """Every agent (A,) (`Agents`: the vehicles, then the ego, which waits as they do (`Traffic.ego_waited`) but is
+    never courteous and never counted on to stop for a claim) at every approach (R,), for the agents on the
+    approach's other lane (on_lane[r, :n_on[r]]; the other entries are never read): inside the zone (or committed
+    to it), its time to the zone [s], held before its give-way line, able to stop there for a vehicle past its
+    patience, claiming the zone itself, physically in the zone, its time to its give-way line [s], waiting before
+    the zone, its distance to the merge point [m] and whether that is near (A, R); on_lane (R, A), n_on (R,); per
+    agent (A,): how long it has waited [s], whether it opens gaps (courteous), the headway [m] it needs behind a
+    merging vehicle; the vehicles changing lane (rows)."""
     ap = approaches
     s_a, v_a, len_a, offset_a = agents.s, agents.v, agents.length, agents.offset
     n_a, n_r, nv = len(s_a), len(ap.lane), len(vehicles.v)
-    waited = np.zeros(n_a)  # [s]
+    waited = agents.waited  # [s]
     courteous = np.zeros(n_a, dtype=np.bool_)
     for a in range(min(n_a, nv)):
-        waited[a] = vehicles.stopped_time[a]
         courteous[a] = vehicles.intention[a, MERGE] == YIELD
     inside = np.empty((n_a, n_r), dtype=np.bool_)
     ttz = np.empty((n_a, n_r))

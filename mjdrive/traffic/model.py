@@ -173,6 +173,7 @@ class Traffic:
                                                      walking=np.zeros(n, dtype=bool), wait=np.zeros(n),
                                                      speed=np.zeros(n))
         self.time = 0.0  # [s]
+        self.ego_waited = 0.0  # [s] how long the ego has waited (slower than motion.STOPPED_SPEED), at decisions
         self._plan: Poses | None = None
         self._k = 0  # index of the current substep in the plan
         self._accumulated = 0.0
@@ -327,8 +328,12 @@ class Traffic:
     def _decide(self) -> None:
         """New accelerations, lane changes, spawns and pedestrian starts; then the plan of poses."""
         v, cfg = self.vehicles, self.config
-        self.stats["despawned"] += motion.move_on(v, self.routes, self.map.length, self.rng,
-                                                  cfg.decision_period if self.urban else 0.0)
+        period = cfg.decision_period if self.urban else 0.0  # urban rules: waiting times count
+        self.stats["despawned"] += motion.move_on(v, self.routes, self.map.length, self.rng, period)
+        ego = self.ego
+        on_lanes = ego is not None and ego.path is not None
+        self.ego_waited = motion.waited_after(self.ego_waited, on_lanes, ego.speed if on_lanes else 0.0, period) \
+            if period > 0 else 0.0
         spawned = self.spawner.spawn(v, self.routes, self.generation, self.now.pos, self.ego, self.rng,
                                      self.intent_rng)
         if spawned:
@@ -354,8 +359,8 @@ class Traffic:
     def agents(self) -> Agents:
         """Where every vehicle and the ego (the last row) is on the lane graph now (`state.Agents`)."""
         ego_path, ego_s, ego_v, ego_length = state.ego_on_lanes(self.ego)
-        return state.agents_on_paths(self.vehicles, ego_path, ego_s, ego_v, ego_length, self.map.length,
-                                     self.map.n_lanes)
+        return state.agents_on_paths(self.vehicles, ego_path, ego_s, ego_v, ego_length, self.ego_waited,
+                                     self.map.length, self.map.n_lanes)
 
     def _accelerations(self, followers: Followers, agents: Agents, accept_gap: float
                        ) -> tuple[np.ndarray, np.ndarray]:
@@ -440,7 +445,7 @@ class Traffic:
         """The nearest vehicle ahead of the point s [m] along the lanes `path` (lane ids, the point's lane first; the
         first PATH count): the distance [m] from the point to its rear bumper and its speed [m/s]; (inf, 0.0) when
         none is on them. The ego is not counted (the point stands in for it)."""
-        agents = state.agents_on_paths(self.vehicles, np.asarray(path, dtype=np.int64)[:PATH], float(s), 0.0, 0.0,
+        agents = state.agents_on_paths(self.vehicles, np.asarray(path, dtype=np.int64)[:PATH], float(s), 0.0, 0.0, 0.0,
                                        self.map.length, self.map.n_lanes)
         return path_leader(agents, self.nv)
 

@@ -219,12 +219,19 @@ def commit(vehicles, pedestrians, t_end, t_end2):
 
 
 @inline
+def waited_after(waited: float, present: bool, speed: float, period: float) -> float:
+    """A road user's waiting time [s] one decision period [s] on: reset unless it is present and slower than
+    STOPPED_SPEED (creeping up to a give-way line does not reset it). The vehicles' (`count_waiting`) and the
+    ego's (`Traffic.ego_waited`)."""
+    return waited + period if present and speed < STOPPED_SPEED else 0.0
+
+
+@inline
 def count_waiting(vehicles, period):
-    """Each vehicle's waiting time [s] one decision period [s] on, in place: reset unless it is active and slower
-    than STOPPED_SPEED (creeping up to a give-way line does not reset it)."""
+    """Each vehicle's waiting time [s] one decision period [s] on, in place (`waited_after`)."""
     active, v, stopped_time = vehicles.active, vehicles.v, vehicles.stopped_time
     for r in range(len(v)):
-        stopped_time[r] = stopped_time[r] + period if active[r] and v[r] < STOPPED_SPEED else 0.0
+        stopped_time[r] = waited_after(stopped_time[r], active[r], v[r], period)
 
 
 @inline

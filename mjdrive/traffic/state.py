@@ -113,6 +113,7 @@ class Agents(NamedTuple):
     s: np.ndarray  # [m] along path[:, 0]
     v: np.ndarray  # [m/s]
     length: np.ndarray  # [m]
+    waited: np.ndarray  # [s] how long each has waited (urban rules' patience: vehicles' stopped_time, the ego's)
 
 
 class Followers(NamedTuple):
@@ -139,7 +140,8 @@ NO_PATH = np.zeros(0, dtype=np.int64)
 
 def ego_on_lanes(ego: EgoState | None) -> tuple[np.ndarray, float, float, float]:
     """The ego's path (lane ids, at most PATH; empty when it is off the lanes), s [m], speed (>= 0) [m/s] and
-    length [m] as an agent (an empty path and zeros without an ego)."""
+    length [m] as an agent (an empty path and zeros without an ego); its waiting time is the traffic's
+    (`Traffic.ego_waited`)."""
     if ego is None:
         return NO_PATH, 0.0, 0.0, 0.0
     if ego.path is not None and len(ego.path) and ego.path[0] >= 0:
@@ -148,16 +150,18 @@ def ego_on_lanes(ego: EgoState | None) -> tuple[np.ndarray, float, float, float]
 
 
 @jit
-def agents_on_paths(vehicles, ego_path, ego_s, ego_v, ego_length, lane_length, n_lanes):
-    """The vehicles and the ego (last row, `ego_path`, s [m], speed [m/s], length [m]) as `Agents`: their paths
+def agents_on_paths(vehicles, ego_path, ego_s, ego_v, ego_length, ego_waited, lane_length, n_lanes):
+    """The vehicles and the ego (last row, `ego_path`, s [m], speed [m/s], length [m], waiting time [s]) as
+    `Agents`: their paths
     (-1 rows for inactive vehicles), the distance from each one's lane start to the start of each lane on its path,
     and to the start of every lane (inf off the path; the first occurrence on a path wins)."""
     v_path, active, v_s, v_v, v_length = vehicles.path, vehicles.active, vehicles.s, vehicles.v, vehicles.length
     nv, n_p = v_path.shape
-    s_a, v_a, length_a = np.empty(nv + 1), np.empty(nv + 1), np.empty(nv + 1)
+    s_a, v_a, length_a, waited = np.empty(nv + 1), np.empty(nv + 1), np.empty(nv + 1), np.empty(nv + 1)
+    stopped_time = vehicles.stopped_time
     for r in range(nv):
-        s_a[r], v_a[r], length_a[r] = v_s[r], v_v[r], v_length[r]
-    s_a[nv], v_a[nv], length_a[nv] = ego_s, ego_v, ego_length
+        s_a[r], v_a[r], length_a[r], waited[r] = v_s[r], v_v[r], v_length[r], stopped_time[r]
+    s_a[nv], v_a[nv], length_a[nv], waited[nv] = ego_s, ego_v, ego_length, ego_waited
     path = np.full((nv + 1, n_p), -1, dtype=np.int64)
     for r in range(nv):
         if active[r]:
@@ -176,4 +180,4 @@ def agents_on_paths(vehicles, ego_path, ego_s, ego_v, ego_length, lane_length, n
             lane = path[r, j]
             offset[r, lane if lane >= 0 else n_lanes] = start[r, j]
         offset[r, n_lanes] = INF
-    return Agents(path, start, offset, s_a, v_a, length_a)
+    return Agents(path, start, offset, s_a, v_a, length_a, waited)
