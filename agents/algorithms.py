@@ -8,7 +8,7 @@ from mjdrive.agents.checkpoints import CheckpointError
 from mjdrive.envs import make_env
 from mjdrive.suite import split_task
 
-ALGOS = ("ppo", "sac", "dqn", "trpo")
+ALGOS = ("ppo", "sac", "dqn", "trpo", "ppo_discrete")
 
 
 def agent_class(algo: str):
@@ -29,6 +29,10 @@ def agent_class(algo: str):
         from mjdrive.agents.trpo import TRPOAgent
 
         return TRPOAgent
+    if algo == "ppo_discrete":
+        from mjdrive.agents.ppo_discrete import PPODiscreteAgent
+
+        return PPODiscreteAgent
     raise ValueError(f"unknown algo {algo!r}; valid: {', '.join(ALGOS)}")
 
 

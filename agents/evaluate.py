@@ -38,10 +38,14 @@ from mjdrive.suite import split_task
 
 
 def load_agent(path: str | Path) -> tuple[Any, dict]:
-    """(agent ready to act, checkpoint payload) from a full checkpoint, a policy.pt or an ensemble."""
+    """(agent ready to act, checkpoint payload) from a full checkpoint, a policy.pt, an ensemble or a hybrid."""
     payload = load_checkpoint(path)
     if payload["algo"] == "ensemble":
         return ensemble_agent(payload, path), payload
+    if payload["algo"] == "hybrid":
+        from mjdrive.agents.hybrid import hybrid_agent
+
+        return hybrid_agent(payload, path), payload
     return agent_from_payload(payload, str(path)), payload
 
 
@@ -271,6 +275,7 @@ def evaluate(checkpoint: str | Path, episodes: int = 50, task: str | None = None
             "deterministic": deterministic, "seed": seed, "wall_s": round(time.perf_counter() - start, 1),
             "workers": workers, "ray": ray,
             **({"ensemble": config["ensemble"]} if "ensemble" in config else {}),
+            **({"hybrid": config["hybrid"]} if "hybrid" in config else {}),
             "summary": summarize(rows), "rows": rows}
 
 
@@ -288,6 +293,11 @@ def to_markdown(result: dict) -> str:
     ]
     if result.get("ensemble"):
         lines += [f"This is {describe(result['ensemble'])}; the steps above are its longest-trained member's.", ""]
+    if result.get("hybrid"):
+        from mjdrive.agents.hybrid import describe as describe_hybrid
+
+        lines += [f"This is {describe_hybrid(result['hybrid'])}; the steps above are its longest-trained "
+                  "member's.", ""]
     if result["task"].startswith("roundabout"):
         lines += [
             "| agent | avg reward | avg time (s) | avg speed (m/s) | avg distance (m) | avg steps | success % "

@@ -1,9 +1,10 @@
-"""Network pieces the learners share: MLPs, study 000's CNN, the observation encoder, and the
-action map of tanh-squashed policies."""
+"""Network pieces the learners share: MLPs, study 000's CNN, the observation encoder (study 002's separate
+feature extractors among its kinds), and the action map of tanh-squashed policies."""
 
 from __future__ import annotations
 
 import gymnasium as gym
+import numpy as np
 import torch
 import torch.nn as nn
 
@@ -66,6 +67,45 @@ class StudyCNN(nn.Module):
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         """image: (B, C, H, W) uint8 or float in [0, 255]."""
         return self.net((image.float() / 255.0).contiguous(memory_format=torch.channels_last))
+
+
+class GroupEncoder(nn.Module):
+    """Study 002's feature extractor (§5, Fig. 6): each group of observation entries (e.g. the ego's features and
+    the adversary matrix) through its own MLP (tanh), the outputs concatenated. `groups` maps a group's name to
+    the observation keys it reads; together the groups read every feature key of `layout` exactly once."""
+
+    def __init__(self, layout: ObservationLayout, groups: dict[str, list[str]], hidden: list[int]):
+        super().__init__()
+        if layout.image_key:
+            raise ValueError(f"the group extractor reads features only; the observation has an image "
+                             f"({layout.image_key!r})")
+        read = [key for keys in groups.values() for key in keys]
+        unknown = sorted(set(read) - set(layout.feature_keys))
+        if unknown or len(read) != len(set(read)) or set(read) != set(layout.feature_keys):
+            raise ValueError(f"extractor groups {groups} must read each observation key once; the observation has "
+                             f"{layout.feature_keys}" + (f" (unknown: {unknown})" if unknown else ""))
+        offsets = dict(zip(layout.feature_keys, np.cumsum([0, *layout.feature_sizes[:-1]]).tolist(), strict=True))
+        sizes = dict(zip(layout.feature_keys, layout.feature_sizes, strict=True))
+        self.names = list(groups)
+        for name, keys in groups.items():
+            index = torch.cat([torch.arange(offsets[k], offsets[k] + sizes[k]) for k in keys])
+            self.register_buffer(f"index_{name}", index, persistent=False)
+        self.nets = nn.ModuleDict({name: mlp(sum(sizes[k] for k in keys), hidden, None, nn.Tanh)
+                                   for name, keys in groups.items()})
+        self.out_dim = len(groups) * hidden[-1]
+
+    def forward(self, features: torch.Tensor, image: torch.Tensor | None = None) -> torch.Tensor:
+        return torch.cat([self.nets[name](features[:, getattr(self, f"index_{name}")]) for name in self.names],
+                         dim=-1)
+
+
+def make_encoder(layout: ObservationLayout, hp: dict) -> nn.Module:
+    """The observation encoder an algorithm's settings ask for: `extractor: {groups, hidden}` for study 002's
+    group extractor, else `Encoder` (with `cnn` for an image)."""
+    extractor = hp.get("extractor")
+    if extractor:
+        return GroupEncoder(layout, extractor["groups"], list(extractor.get("hidden", [128, 128])))
+    return Encoder(layout, hp.get("cnn"))
 
 
 class Encoder(nn.Module):

@@ -26,7 +26,8 @@ from mjdrive.agents.run_log import Run
 from mjdrive.agents.seeding import set_seed
 
 # the entries of each learner's state that acting needs (policy.pt keeps only these)
-INFERENCE_KEYS = {"sac": ("actor",), "dqn": ("q",), "ppo": ("actor_state_dict",), "trpo": ("policy",)}
+INFERENCE_KEYS = {"sac": ("actor",), "dqn": ("q",), "ppo": ("actor_state_dict",), "trpo": ("policy",),
+                  "ppo_discrete": ("policy",)}
 # config keys that must match to resume a run
 RESUME_KEYS = ("algo", "task", "mix_tasks", "task_kwargs", "actions", "num_envs", "algorithm", "rsl_rl")
 # algorithm keys a resumed run may change (fine-tuning at a lower learning rate); the rest must match
@@ -135,6 +136,10 @@ def train(config: dict, out: str | Path, resume: bool = False, progress: bool = 
             from mjdrive.agents import trpo
 
             trpo.train(config, run, state)
+        elif algo == "ppo_discrete":
+            from mjdrive.agents import ppo_discrete
+
+            ppo_discrete.train(config, run, state)
         else:
             from mjdrive.agents.off_policy import (
                 REPLAY_DIR,

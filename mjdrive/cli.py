@@ -1,4 +1,4 @@
-"""`mjdrive list | run | drive | bench | replay | logs | train | eval | ensemble`: the command line."""
+"""`mjdrive list | run | drive | bench | replay | logs | train | eval | ensemble | hybrid`: the command line."""
 
 from __future__ import annotations
 
@@ -403,6 +403,16 @@ def cmd_ensemble(args) -> int:
         return ensemble_command(args)
 
 
+def cmd_hybrid(args) -> int:
+    from mjdrive.progress import Starting
+
+    _say_when_not_a_terminal("mjdrive hybrid: loading torch and the members ...")
+    with Starting("mjdrive hybrid: loading torch and the members", stdout_in_logs=True):
+        from mjdrive.agents.hybrid import hybrid_command
+
+        return hybrid_command(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(prog="mjdrive", description="MuJoCo driving-simulation suite for RL.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -492,8 +502,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--out", default=None, help="also write the report to this file (default: print it only)")
     bench.set_defaults(func=cmd_bench)
 
-    train = sub.add_parser("train", help="train a learner (ppo, sac, dqn, trpo) on a task")
-    train.add_argument("--algo", default="ppo", choices=("ppo", "sac", "dqn", "trpo"),
+    train = sub.add_parser("train", help="train a learner (ppo, sac, dqn, trpo, ppo_discrete) on a task")
+    train.add_argument("--algo", default="ppo", choices=("ppo", "sac", "dqn", "trpo", "ppo_discrete"),
                        help="the learner (config: agents/configs/ALGO.yaml)")
     train.add_argument("--config", default=None, help="config file, or name in agents/configs/ (e.g. ppo_camera; "
                        "default: agents/configs/ALGO.yaml)")
@@ -553,6 +563,16 @@ def build_parser() -> argparse.ArgumentParser:
                                "pedal actions)")
     ensemble.add_argument("--out", required=True, help="the ensemble checkpoint to write")
     ensemble.set_defaults(func=cmd_ensemble)
+
+    hybrid = sub.add_parser("hybrid", help="compose study 002's hybrid agent (a scenario selector over one decision "
+                            "agent per scenario) into one checkpoint that `eval` reads like a policy.pt")
+    hybrid.add_argument("--member", action="append", required=True, metavar="SCENARIO=CHECKPOINT",
+                        help="the agent trained on urban/SCENARIO with decisions (roundabout, lane_change, crossroad, "
+                             "merge); repeat per scenario (one left out decides 'drive' there)")
+    hybrid.add_argument("--task", default="urban/concatenated", type=task_name,
+                        help="the urban task the hybrid drives (default: urban/concatenated)")
+    hybrid.add_argument("--out", required=True, help="the hybrid checkpoint to write")
+    hybrid.set_defaults(func=cmd_hybrid)
     return parser
 
 

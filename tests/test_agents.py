@@ -33,6 +33,9 @@ CASES = {
     "dqn_cnn": ("dqn_camera", ["steps=160", "task=waypoints/straight", *OFF_POLICY, *CAMERA,
                                f"algorithm.cnn={SMALL_CNN}"]),
     "trpo_mlp": ("trpo", ["steps=256", "algorithm.rollout_steps=32"]),
+    # study 002's decisions with its network (the group extractor of Fig. 6)
+    "trpo_decisions": ("trpo_crossroad", ["steps=128", "algorithm.rollout_steps=16"]),
+    "ppo_discrete_decisions": ("ppo_discrete", ["steps=128", "algorithm.rollout_steps=16"]),
 }
 
 
@@ -67,6 +70,34 @@ def test_learner_trains_saves_and_reloads(case, tmp_path):
     assert payload["extra"]["inference_only"] and payload["config"]["algo"] == config["algo"]
     np.testing.assert_array_equal(small.act(obs), full.act(obs))
     assert policy_path.stat().st_size < 5e6
+
+
+def test_the_group_extractor_reads_each_group_through_its_own_network():
+    """Study 002's Fig. 6: the ego's features and the adversary matrix pass separate MLPs; an adversary change
+    moves only the adversary half of the encoding, an ego change only the ego half."""
+    import gymnasium as gym
+
+    from mjdrive.agents.networks import GroupEncoder
+    from mjdrive.envs.batched import ObservationLayout
+
+    space = gym.spaces.Dict({"adversaries": gym.spaces.Box(0, 1, (6, 4)), "ego": gym.spaces.Box(0, 1, (4,)),
+                             "scenario": gym.spaces.Box(0, 1, (5,))})
+    layout = ObservationLayout(space)
+    torch.manual_seed(0)
+    encoder = GroupEncoder(layout, {"ego": ["ego", "scenario"], "adversaries": ["adversaries"]}, [16, 8])
+    assert encoder.out_dim == 16
+    obs = {key: np.random.default_rng(1).random((2, *sub.shape)).astype(np.float32) for key, sub in space.items()}
+    base = encoder(torch.as_tensor(layout.features(obs)))
+    moved = {**obs, "adversaries": obs["adversaries"] + 0.5}
+    out = encoder(torch.as_tensor(layout.features(moved)))
+    assert torch.equal(out[:, :8], base[:, :8]) and not torch.allclose(out[:, 8:], base[:, 8:])
+    moved = {**obs, "scenario": obs["scenario"][:, ::-1].copy()}
+    out = encoder(torch.as_tensor(layout.features(moved)))
+    assert not torch.allclose(out[:, :8], base[:, :8]) and torch.equal(out[:, 8:], base[:, 8:])
+    with pytest.raises(ValueError, match="each observation key once"):
+        GroupEncoder(layout, {"ego": ["ego"], "adversaries": ["adversaries"]}, [8])  # scenario unread
+    with pytest.raises(ValueError, match="unknown: \\['speed'\\]"):
+        GroupEncoder(layout, {"ego": ["ego", "scenario", "speed"], "adversaries": ["adversaries"]}, [8])
 
 
 @pytest.mark.parametrize("algo", ["sac", "dqn", "trpo"])

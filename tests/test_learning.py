@@ -131,6 +131,9 @@ LEARNERS = {
                     "algorithm.updates_per_step=0.5", "algorithm.hidden=[64, 64]"]),
     "trpo": ("trpo", ["steps=2048", "num_envs=16", "algorithm.gamma=0.9", "algorithm.rollout_steps=16",
                       "algorithm.hidden=[32, 32]", "algorithm.max_kl=0.05"]),
+    "ppo_discrete": ("ppo_discrete", ["steps=4096", "num_envs=16", "algorithm.gamma=0.9",
+                                      "algorithm.rollout_steps=16", "algorithm.hidden=[32, 32]",
+                                      "algorithm.lr=1.0e-3", "algorithm.extractor=null"]),
 }
 COMMON = ["task=test/lane", "task_kwargs={}", "reward_scale=1.0", "seed=0", "checkpoint_every=0",
           "tensorboard=false", "torch_threads=1", "log_every=500"]
@@ -138,18 +141,18 @@ COMMON = ["task=test/lane", "task_kwargs={}", "reward_scale=1.0", "seed=0", "che
 
 @pytest.mark.parametrize("algo", sorted(LEARNERS))
 def test_learner_solves_the_lane_task_within_its_step_budget(algo, tmp_path, monkeypatch):
-    from mjdrive.agents import ppo, train, trpo
+    from mjdrive.agents import on_policy, ppo, train
 
     name, overrides = LEARNERS[algo]
     config = apply_overrides(load_config(name), COMMON + overrides)
-    discrete = algo == "dqn"
+    discrete = algo in ("dqn", "ppo_discrete")
     envs: list[LaneVecEnv] = []
 
     def make_lane_env(config: dict, num_envs: int | None = None, **overrides) -> LaneVecEnv:
         envs.append(LaneVecEnv(num_envs or config["num_envs"], discrete))
         return envs[-1]
 
-    for module in (train, ppo, trpo):  # the learners build their env through make_training_env
+    for module in (train, ppo, on_policy):  # the learners build their env through make_training_env
         monkeypatch.setattr(module, "make_training_env", make_lane_env)
     probe = LaneVecEnv(1, discrete)
     set_seed(int(config["seed"]))  # the untrained networks train() starts from

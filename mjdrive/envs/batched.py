@@ -290,7 +290,8 @@ class ObservationLayout:
             raise ValueError(f"at most one image observation is supported, got {images}")
         self.image_key = images[0] if images else None
         self.feature_keys = [key for key in space.spaces if key != self.image_key]
-        self.feature_dim = int(sum(np.prod(space[key].shape) for key in self.feature_keys))
+        self.feature_sizes = [int(np.prod(space[key].shape)) for key in self.feature_keys]  # flat, in order
+        self.feature_dim = sum(self.feature_sizes)
         self.image_shape: tuple[int, int, int] | None = None
         self._transpose = False
         if self.image_key is not None:
