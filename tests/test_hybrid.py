@@ -7,28 +7,9 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from mjdrive.agents.checkpoints import CheckpointError, load_checkpoint, save_checkpoint  # noqa: E402
-from mjdrive.agents.config import apply_overrides, load_config  # noqa: E402
 from mjdrive.agents.evaluate import evaluate, load_agent  # noqa: E402
 from mjdrive.agents.hybrid import HybridAgent, save_hybrid  # noqa: E402
-from mjdrive.agents.trpo import TRPOAgent  # noqa: E402
-from mjdrive.envs import make_env  # noqa: E402
 from mjdrive.tasks.urban import SCENARIOS  # noqa: E402
-
-
-def _member(tmp_path, scenario: str, seed: int, **task_kwargs) -> str:
-    """An untrained (random) TRPO decision agent of urban/<scenario> saved as a policy file."""
-    config = apply_overrides(load_config("trpo_crossroad"), [f"task=urban/{scenario}"])
-    config["task_kwargs"] = {"decisions": True, **task_kwargs}
-    env = make_env("urban", scenario, **config["task_kwargs"])
-    torch.manual_seed(seed)
-    agent = TRPOAgent(config, env.observation_space, env.action_space)
-    env.close()
-    for p in agent.policy.parameters():
-        torch.nn.init.normal_(p, std=1.0)  # decisive random policies
-    path = tmp_path / f"{scenario}.pt"
-    save_checkpoint(path, "trpo", config, {"policy": agent.policy.state_dict()}, step=1000 + seed,
-                    extra={"inference_only": True})
-    return str(path)
 
 
 def _observations(scenario_codes: list[int], n_adversaries: int = 6) -> dict[str, np.ndarray]:
@@ -39,7 +20,8 @@ def _observations(scenario_codes: list[int], n_adversaries: int = 6) -> dict[str
             "adversaries": rng.random((n, n_adversaries, 4), dtype=np.float32)}
 
 
-def test_the_selector_hands_each_row_to_its_scenarios_member_by_action_name(tmp_path):
+def test_the_selector_hands_each_row_to_its_scenarios_member_by_action_name(tmp_path, decision_agent_file):
+    _member = decision_agent_file
     members = {"crossroad": _member(tmp_path, "crossroad", 1), "lane_change": _member(tmp_path, "lane_change", 2)}
     path = save_hybrid(members, tmp_path / "hybrid.pt")
     hybrid, payload = load_agent(path)
@@ -65,7 +47,8 @@ def test_the_selector_hands_each_row_to_its_scenarios_member_by_action_name(tmp_
     assert hybrid.last[1][:2] == ("crossroad", "crossroad") and hybrid.last[0][1:] == ("follow path", "drive")
 
 
-def test_a_changed_member_weight_or_a_wrong_member_is_refused(tmp_path):
+def test_a_changed_member_weight_or_a_wrong_member_is_refused(tmp_path, decision_agent_file):
+    _member = decision_agent_file
     path = save_hybrid({"crossroad": _member(tmp_path, "crossroad", 1)}, tmp_path / "hybrid.pt")
     payload = load_checkpoint(path)
     weights = payload["state"]["members"]["crossroad"]["state"]["policy"]
@@ -83,7 +66,8 @@ def test_a_changed_member_weight_or_a_wrong_member_is_refused(tmp_path):
                      "merge": _member(tmp_path, "merge", 2, adversaries=4)}, tmp_path / "wrong.pt")
 
 
-def test_mjdrive_eval_drives_a_hybrid_episode(tmp_path):
+def test_mjdrive_eval_drives_a_hybrid_episode(tmp_path, decision_agent_file):
+    _member = decision_agent_file
     path = save_hybrid({"crossroad": _member(tmp_path, "crossroad", 1)}, tmp_path / "hybrid.pt",
                        task="urban/crossroad")
     result = evaluate(path, episodes=1, seed=5)

@@ -28,3 +28,27 @@ def test_the_table_adds_the_unfiltered_jerk_of_the_same_samples():
     ours = next(line for line in text.splitlines() if line.startswith("| mjdrive autopilot |"))
     assert ours.endswith(f"| {row['jerk_p95_raw']:.2f} | {row['jerk_max_raw']:.2f} |")
     assert all(line.endswith("| - | - |") for line in text.splitlines() if "(paper" in line)
+
+
+def test_a_checkpoint_is_a_driver_whose_episodes_match_mjdrive_eval(tmp_path, decision_agent_file):
+    """`--checkpoint NAME=PATH` (e.g. the hybrid agent): its row drives the episodes `mjdrive eval` drives on the
+    same seeds, and the table names it and the command."""
+    import pytest
+
+    pytest.importorskip("torch")
+    from mjdrive.agents.evaluate import evaluate
+    from mjdrive.agents.hybrid import save_hybrid
+    from tools.urban_table2 import main
+
+    path = save_hybrid({"crossroad": decision_agent_file(tmp_path, "crossroad", 1)}, tmp_path / "hybrid.pt",
+                       task="urban/crossroad")
+    out = tmp_path / "table.md"
+    assert main(["--task", "crossroad", "--checkpoint", f"hybrid (test)={path}", "--episodes", "2", "--seed", "3",
+                 "--out", str(out)]) == 0
+    text = out.read_text()
+    assert f'--checkpoint "hybrid (test)={path}" --episodes 2 --seed 3' in text
+    rows = run("crossroad", f"checkpoint={path}", 2, seed=3)
+    evaluated = evaluate(path, episodes=2, seed=3)["rows"]
+    assert [round(r["time"], 2) for r in rows] == [r["time_s"] for r in evaluated]
+    ours = next(line for line in text.splitlines() if line.startswith("| mjdrive hybrid (test) |"))
+    assert ours.startswith(f"| mjdrive hybrid (test) | {100 * sum(r['end'] == 'success' for r in rows) / 2:.2f} |")

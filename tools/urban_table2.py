@@ -2,10 +2,13 @@
 paper's rows.
 
     python -m tools.urban_table2 --policy autopilot rules --episodes 200 --out results/urban/table2.md
+    python -m tools.urban_table2 --checkpoint "hybrid (TRPO)=results/checkpoints/hybrid_trpo.pt" --policy rules
 
 Episode i of every driver runs with seed SEED + i. The drivers of the decision action set (`rules`,
-`always_drive`, `always_stop`) drive the task with `decisions=True` (the operative level underneath); the others
-with throttle, steer and brake. Metrics per episode from the task's `info` (comfort metrics of the chassis in the
+`always_drive`, `always_stop`, and checkpoints trained with `decisions=true`, such as the hybrid agent) drive the
+task with `decisions=True` (the operative level underneath); the others with throttle, steer and brake. A
+checkpoint acts greedily. Metrics per episode from the task's `info` (comfort metrics of the chassis in the
+
 car's heading frame, sampled at the control rate, 10 Hz, Savitzky-Golay smoothed over 0.5 s: `mjdrive.comfort`,
 docs/summary.md); two more columns give the p95 and max jerk of the same samples unfiltered (finite differences,
 `ComfortMeter.unfiltered_jerk`), to compare with figures filtered otherwise. The table shows means over episodes,
@@ -49,12 +52,35 @@ def task_env(task: str, decisions: bool = False) -> gym.Env:
     return _ENVS[key]
 
 
+CHECKPOINT = "checkpoint="  # a driver `checkpoint=PATH`: the policy of a checkpoint file
+_AGENTS: dict[str, object] = {}  # this process's loaded checkpoints
+
+
+def checkpoint_policy(path: str) -> tuple[object, bool]:
+    """(the greedy agent of checkpoint `path`, whether it takes decisions), loaded once per process."""
+    from mjdrive.agents.evaluate import load_agent
+
+    if path not in _AGENTS:
+        agent, payload = load_agent(path)
+        if not payload["config"]["task"].startswith("urban/"):
+            raise ValueError(f"checkpoint {path} was trained on {payload['config']['task']}, not an urban task")
+        _AGENTS[path] = agent, bool(payload["config"].get("task_kwargs", {}).get("decisions"))
+    return _AGENTS[path]
+
+
 def episode(spec: tuple[str, str, int], index: int) -> dict:
     """Episode `index` of (task, policy, first seed): its end and metrics (a fan-out job: depends only on
     its arguments)."""
     task, policy, seed = spec
-    env = task_env(task, policy in DECISION_POLICIES)
-    act = make_policy(policy, env, seed + index)
+    if policy.startswith(CHECKPOINT):
+        agent, decisions = checkpoint_policy(policy.removeprefix(CHECKPOINT))
+        env = task_env(task, decisions)
+
+        def act(observation: dict):
+            return agent.act({key: value[None] for key, value in observation.items()})[0]
+    else:
+        env = task_env(task, policy in DECISION_POLICIES)
+        act = make_policy(policy, env, seed + index)
     observation, info = env.reset(seed=seed + index)
     while True:
         observation, _, terminated, truncated, info = env.step(act(observation))
@@ -91,13 +117,19 @@ DRIVER_NAMES = {"rules": "rules + operative level"}  # else the policy's name
 ENDS = ("success", "collision", "off_route", "time_limit")
 
 
-def markdown(task: str, policies: str | list[str], rows: list[dict] | list[list[dict]], seed: int) -> str:
-    """The table of one run: a row per driver (`policies`, with their episodes' `rows`), the paper's rows."""
+def markdown(task: str, policies: str | list[str], rows: list[dict] | list[list[dict]], seed: int,
+             checkpoints: dict[str, str] | None = None) -> str:
+    """The table of one run: a row per driver (`checkpoints` by name, then `policies`, with their episodes'
+    `rows` in that order), the paper's rows."""
     if isinstance(policies, str):
         policies, rows = [policies], [rows]
+    checkpoints = checkpoints or {}
     n = len(rows[0])
-    lines = [f"# Table 2 on urban/{task}: {', '.join(policies)}", "",
-             f"`python -m tools.urban_table2 --task {task} --policy {' '.join(policies)} --episodes {n} "
+    command = "".join(f' --checkpoint "{name}={path}"' for name, path in checkpoints.items())
+    command += f" --policy {' '.join(policies)}" if policies else ""
+    names = [*checkpoints, *(DRIVER_NAMES.get(p, p) for p in policies)]
+    lines = [f"# Table 2 on urban/{task}: {', '.join(names)}", "",
+             f"`python -m tools.urban_table2 --task {task}{command} --episodes {n} "
              f"--seed {seed}`: {n} episodes per driver (seeds {seed}-{seed + n - 1}). Means over episodes (comfort, "
              "time and speed over the successful ones), beside the paper's rows (CARLA Town03, its own route and "
              "traffic: a comparison of magnitudes, not of the same world). Comfort: the chassis in the car's heading "
@@ -106,7 +138,7 @@ def markdown(task: str, policies: str | list[str], rows: list[dict] | list[list[
              "differences, unfiltered (the paper does not say how it filtered).", "",
              "| driver | " + " | ".join(COLUMNS) + " |", "| --- |" + " ---: |" * len(COLUMNS)]
     notes = []
-    for policy, episodes in zip(policies, rows, strict=True):
+    for policy, episodes in zip([*checkpoints, *policies], rows, strict=True):
         ok = [r for r in episodes if r["end"] == "success"]
         mean = (lambda key, ok=ok: float(np.mean([r[key] for r in ok])) if ok else float("nan"))  # noqa: E731
         ours = (100.0 * len(ok) / len(episodes), mean("jerk_p95"), mean("jerk_max"), mean("accel_p95"),
@@ -128,8 +160,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--task", default="concatenated", choices=("roundabout", "lane_change", "crossroad",
                                                                    "merge", "concatenated"))
-    parser.add_argument("--policy", nargs="+", default=["autopilot"], choices=POLICIES,
-                        help="one or more drivers, a row each")
+    parser.add_argument("--policy", nargs="*", default=None, choices=POLICIES,
+                        help="one or more built-in drivers, a row each (default: autopilot, unless checkpoints are "
+                             "given)")
+    parser.add_argument("--checkpoint", action="append", default=[], metavar="NAME=PATH",
+                        help="a trained policy (e.g. a hybrid checkpoint) as the row NAME; repeatable, rows first")
     parser.add_argument("--episodes", type=int_at_least(1), default=200)
     parser.add_argument("--seed", type=int_at_least(0), default=20000, help="seed of the first episode")
     parser.add_argument("--workers", type=int_at_least(0), default=0, metavar="N",
@@ -138,8 +173,19 @@ def main(argv: list[str] | None = None) -> int:
                         help="run the episodes as Ray tasks ('local' for a private Ray of --workers CPUs)")
     parser.add_argument("--out", default=None, help="write the markdown table here")
     args = parser.parse_args(argv)
-    rows = [run(args.task, policy, args.episodes, args.seed, args.workers, args.ray) for policy in args.policy]
-    text = markdown(args.task, args.policy, rows, args.seed)
+    checkpoints = {}
+    for item in args.checkpoint:
+        name, sep, path = item.partition("=")
+        if not sep or not name or not path:
+            parser.error(f"--checkpoint {item!r}: write NAME=PATH")
+        if not Path(path).is_file():
+            parser.error(f"--checkpoint {item!r}: no file {path}")
+        checkpoint_policy(path)  # a bad checkpoint: its one-line error before any episode runs
+        checkpoints[name] = path
+    policies = args.policy if args.policy is not None else ([] if checkpoints else ["autopilot"])
+    drivers = [CHECKPOINT + path for path in checkpoints.values()] + policies
+    rows = [run(args.task, driver, args.episodes, args.seed, args.workers, args.ray) for driver in drivers]
+    text = markdown(args.task, policies, rows, args.seed, checkpoints)
     publish(text, args.out)
     return 0
 
