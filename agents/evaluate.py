@@ -185,6 +185,8 @@ class EpisodeRunner:
         try:
             while True:
                 action = self.agent.act({key: value[None] for key, value in obs.items()}, spec.deterministic)[0]
+                if hasattr(env, "recorder") and getattr(self.agent, "last", None):  # who decided (the hybrid)
+                    env.recorder.decided(*self.agent.last[0], obs)
                 obs, reward, terminated, truncated, info = env.step(action)
                 total += reward
                 steps += 1

@@ -73,3 +73,33 @@ def test_mjdrive_eval_drives_a_hybrid_episode(tmp_path, decision_agent_file):
     result = evaluate(path, episodes=1, seed=5)
     assert result["algo"] == "hybrid" and result["task"] == "urban/crossroad"
     assert result["rows"][0]["steps"] > 5 and "hybrid" in result
+
+
+def test_the_log_says_which_agent_decided_each_step_and_on_what(tmp_path, decision_agent_file):
+    """/decision: one message per step of a hybrid's evaluated episode, valid against its schema, naming the
+    member that decided in its scenario ("follow path" elsewhere) and the observation it saw."""
+    import json
+
+    import jsonschema
+
+    from mjdrive.record.reader import read_episode
+
+    path = save_hybrid({"crossroad": decision_agent_file(tmp_path, "crossroad", 1)}, tmp_path / "hybrid.pt",
+                       task="urban/crossroad")
+    result = evaluate(path, episodes=1, seed=5, record_dir=tmp_path / "logs")
+    (log,) = sorted((tmp_path / "logs").glob("*.mcap"))
+    episode = read_episode(log)
+    _, _, schema = episode.schemas["/decision"]
+    messages = [json.loads(payload) for _, payload in episode.messages["/decision"]]
+    actions = [json.loads(payload) for _, payload in episode.messages["/action"]]
+    assert len(messages) == len(actions) == result["rows"][0]["steps"]
+    for message in messages:
+        jsonschema.validate(message, json.loads(schema))
+    assert {m["agent"] for m in messages} == {"follow path", "crossroad"}
+    assert all(m["agent"] == ("crossroad" if m["scenario"] == "crossroad" else "follow path") for m in messages)
+    assert [m["action"] for m in messages] == [a["name"] for a in actions]  # the decision the env applied
+    assert all(np.asarray(m["observation"]["adversaries"]).shape == (6, 4) for m in messages)
+    from mjdrive.envs.replay import replay
+
+    replayed = replay(log)  # the decisions replay bit for bit like any other action
+    assert replayed.checked == replayed.steps > 5 and replayed.mismatch_step is None

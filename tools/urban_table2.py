@@ -115,6 +115,7 @@ def run(task: str, policy: str, episodes: int, seed: int, workers: int = 0, ray:
 
 DRIVER_NAMES = {"rules": "rules + operative level"}  # else the policy's name
 ENDS = ("success", "collision", "off_route", "time_limit")
+SHOWN = 8  # failed episodes named per driver
 
 
 def markdown(task: str, policies: str | list[str], rows: list[dict] | list[list[dict]], seed: int,
@@ -150,7 +151,8 @@ def markdown(task: str, policies: str | list[str], rows: list[dict] | list[list[
         note = f"{policy}: " + ", ".join(f"{k} {e}" for e, k in ends.items())
         if failed:
             note += "; did not arrive: " + ", ".join(
-                f"seed {r['seed']} ({r['end']} in {r['scenario']} at {r['time']:.0f} s)" for r in failed)
+                f"seed {r['seed']} ({r['end']} in {r['scenario']} at {r['time']:.0f} s)" for r in failed[:SHOWN])
+            note += f" and {len(failed) - SHOWN} more" if len(failed) > SHOWN else ""
         notes.append(note + ".")
     lines += [f"| {name} | " + " | ".join(f"{v:.2f}" for v in values) + " | - | - |" for name, values in PAPER.items()]
     return "\n".join(lines + ["", "Ends: " + " ".join(notes)]) + "\n"

@@ -30,6 +30,7 @@ Topics (log times: the episode's wall-clock start + simulated time, so plots sta
 | /operative | JSON mjdrive.OperativeStep | `decisions`: every control period (10 Hz): the operative level's state |
 | /operative/plan | JSON mjdrive.OperativePlan | `decisions`: every step: the MPC's planned s, v, a |
 | /scene/plan | foxglove.SceneUpdate | `decisions`: every step: the path tracked ahead, the stop point |
+| /decision | JSON mjdrive.Decision | when the policy says who decided (`decided`, e.g. the hybrid agent under `eval`) |
 
 /tf, /ego/state, /physics and /scene/road_users also carry the state right after reset (step 0), so they hold steps
 + 1 messages; /action and /reward hold one per step (with `decisions`, /action holds the decision's index and name,
@@ -346,6 +347,14 @@ _PLAN = _json_schema("mjdrive.OperativePlan", {
     "stop": _number("m", "distance to the stop point ahead", nullable=True),
     "mode": {"type": "string", "description": "the MPC's binding constraint"},
 }, "The MPC's last plan at every env step of an urban task with `decisions`.")
+_DECISION = _json_schema("mjdrive.Decision", {
+    "t": _number("s", "simulated time the decision acts from"),
+    "scenario": {"type": "string", "description": "the active scenario the policy saw"},
+    "agent": {"type": "string", "description": "who decided: a member agent's scenario, or 'follow path'"},
+    "action": {"type": "string", "description": "the decision's name (tasks/decisions.py ACTIONS)"},
+    "observation": {"type": "object", "description": "the observation the policy decided on, by entry (arrays as "
+                    "nested lists)", "additionalProperties": {"type": "array"}},
+}, "Who decided each step's action and on what (the hybrid agent's scenario selector), at the action's time.")
 PLAN_RGBA = (0.2, 0.9, 0.4, 0.9)  # the lateral path the operative level tracks, in the 3D scene
 STOP_RGBA = (0.95, 0.2, 0.2, 1.0)  # the MPC's stop point
 
@@ -364,6 +373,17 @@ class _OperativeChannels:
         self.step = json_channel("/operative", _OPERATIVE)
         self.plan = json_channel("/operative/plan", _PLAN)
         self.scene = foxglove.channels.SceneUpdateChannel("/scene/plan", context=context)
+        self._context = context
+        self._decision = None
+
+    @property
+    def decision(self):
+        """/decision, made on first use (only policies that say who decided have it)."""
+        if self._decision is None:
+            channel = foxglove.Channel("/decision", schema=_DECISION, message_encoding="json", context=self._context)
+            self._keep.append(channel)
+            self._decision = channel.base
+        return self._decision
 
 
 def _ns(seconds: float) -> int:
@@ -649,6 +669,17 @@ class EpisodeRecorder:
                 c["P"] = [f, 0.0, w / 2, 0.0, 0.0, f, h / 2, 0.0, 0.0, 0.0, 1.0, 0.0]
             self._model_cache = (model, c)
         return self._model_cache[1]
+
+    def decided(self, scenario: str, agent: str, action: str, observation: dict[str, np.ndarray]) -> None:
+        """Log who decides the coming step's action (`agent`, in the active `scenario`) and the observation it saw,
+        at the simulated time the action acts from (/decision); call before that step."""
+        if self._writer is None:
+            raise RuntimeError("EpisodeRecorder.decided before begin()")
+        if self._operative_channels is None:
+            self._operative_channels = _OperativeChannels(self._context)
+        seen = {str(key): np.asarray(value).tolist() for key, value in observation.items()}
+        message = {"t": self._prev_time, "scenario": scenario, "agent": agent, "action": action, "observation": seen}
+        self._operative_channels.decision.log(json.dumps(message).encode(), self._t0 + _ns(self._prev_time))
 
     def _log_operative(self, task, ns: int) -> None:
         """The operative level's control periods of this env step (their comfort samples join the episode's), its
