@@ -52,3 +52,21 @@ def test_a_checkpoint_is_a_driver_whose_episodes_match_mjdrive_eval(tmp_path, de
     assert [round(r["time"], 2) for r in rows] == [r["time_s"] for r in evaluated]
     ours = next(line for line in text.splitlines() if line.startswith("| mjdrive hybrid (test) |"))
     assert ours.startswith(f"| mjdrive hybrid (test) | {100 * sum(r['end'] == 'success' for r in rows) / 2:.2f} |")
+
+
+def test_the_decisions_report_sets_the_agent_against_the_baselines_on_the_same_seeds(tmp_path,
+                                                                                    decision_agent_file):
+    import pytest
+
+    pytest.importorskip("torch")
+    from tools.urban_decisions import main, row
+
+    agent = decision_agent_file(tmp_path, "crossroad", 1)
+    out = tmp_path / "decisions.md"
+    assert main(["--agent", f"crossroad={agent}", "--episodes", "1", "--seed", "4", "--out", str(out)]) == 0
+    text = out.read_text()
+    table = [line for line in text.splitlines() if line.startswith("| ") and "driver" not in line and "---" not in line]
+    assert [line.split(" | ")[0] for line in table] == [f"| agent `{agent.split('/')[-1]}`", "| always_drive",
+                                                        "| always_stop", "| rules"]
+    assert table[2].startswith("| always_stop | 0 | 0 | 100 | - |")  # never arrives, never collides
+    assert table[0] == row(f"agent `{agent.split('/')[-1]}`", run("crossroad", f"checkpoint={agent}", 1, seed=4))

@@ -2,13 +2,16 @@
 over time, the background coloured by the active scenario, as PNG.
 
     python -m tools.urban_figures --seed 20000 --out results/urban/
+    python -m tools.urban_figures --seed 20000 --checkpoint results/checkpoints/hybrid_trpo.pt --name hybrid_trpo
 
-Drives one episode with a built-in policy (default the privileged autopilot, `mjdrive.policies`) and writes
-`<policy>_seed<S>.png` (the whole episode) and `<policy>_seed<S>_peak.png` (a few seconds around the
-episode's max |jerk|). Samples: the chassis at the control rate (10 Hz), the episode's start and after every
-control step; acceleration and jerk are `mjdrive.comfort`'s (Savitzky-Golay derivatives, 0.5 s window,
-order 2, car frame), so they are the signals behind the task's comfort metrics. Dashed lines: nuPlan's
-comfort bounds (the paper gives none). Needs matplotlib (`pip install -e .[plot]`).
+Drives one episode with a built-in policy (default the privileged autopilot, `mjdrive.policies`) or a trained
+one (`--checkpoint`, e.g. the hybrid agent, greedy) and writes `<name>_seed<S>.png` (the whole episode) and
+`<name>_seed<S>_peak.png` (a few seconds around the episode's max |jerk|). Samples: the chassis at the control
+rate (10 Hz), the episode's start and after every control period (with the decision action set, each decision
+spans several; the steering shown is then the operative level's commanded angle); acceleration and jerk are
+`mjdrive.comfort`'s (Savitzky-Golay derivatives, 0.5 s window, order 2, car frame), so they are the signals
+behind the task's comfort metrics. Dashed lines: nuPlan's comfort bounds (the paper gives none). Needs
+matplotlib (`pip install -e .[plot]`).
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import numpy as np
 from mjdrive.cli import ArgumentParser, int_at_least, positive_float, run_reporting_errors
 from mjdrive.comfort import AccelerationProfile
 from mjdrive.envs import make_env
-from mjdrive.policies import POLICIES, make_policy
+from mjdrive.policies import DECISION_POLICIES, POLICIES, make_policy
 from mjdrive.tasks.urban import CONTROL_TIMESTEP, SCENARIOS
 
 SCENARIO_COLOURS = {
@@ -62,21 +65,42 @@ class Episode:
         return np.hypot(self.profile.jerk_lon, self.profile.jerk_lat)  # [m/s^3]
 
 
-def drive(seed: int, policy: str = "autopilot", time_limit: float | None = None) -> Episode:
-    """Drive one episode of `urban/concatenated` (seed for the task and the episode, as tools.urban_table2)."""
+def drive(seed: int, policy: str = "autopilot", time_limit: float | None = None,
+          checkpoint: str | None = None) -> Episode:
+    """Drive one episode of `urban/concatenated` (seed for the task and the episode, as tools.urban_table2) with
+    the built-in `policy` or the greedy policy of `checkpoint`."""
     kwargs = {} if time_limit is None else {"time_limit": time_limit}
-    env = make_env("urban", "concatenated", random=seed, **kwargs)
+    if checkpoint is not None:
+        from mjdrive.agents.evaluate import load_agent
+
+        agent, payload = load_agent(checkpoint)
+        decisions = bool(payload["config"].get("task_kwargs", {}).get("decisions"))
+
+        def act(observation: dict):
+            return agent.act({key: value[None] for key, value in observation.items()})[0]
+    else:
+        decisions = policy in DECISION_POLICIES
+    env = make_env("urban", "concatenated", random=seed, decisions=decisions, **kwargs)
     try:
         task, physics = env.unwrapped.task, env.unwrapped.dm_env.physics
-        act = make_policy(policy, env, seed)
+        if checkpoint is None:
+            act = make_policy(policy, env, seed)
         observation, info = env.reset(seed=seed)
         steering, scenario, commands = [task.vehicle.steering_angle(physics.raw_data)], [info["scenario"]], []
         while True:
-            command = np.asarray(act(observation), dtype=np.float64)
-            observation, _, terminated, truncated, info = env.step(command.astype(np.float32))
-            commands.append(command)
-            steering.append(task.vehicle.steering_angle(physics.raw_data))
-            scenario.append(info["scenario"])
+            action = act(observation)
+            observation, _, terminated, truncated, info = env.step(
+                action if decisions else np.asarray(action, dtype=np.float32))
+            if decisions:  # every control period of the decision: the operative level's commands
+                max_steer = task.operative.params.max_steer  # [rad]
+                for tick in task.ticks:
+                    commands.append((tick["throttle"], tick["steer"], tick["brake"]))
+                    steering.append(tick["steer"] * max_steer)
+                    scenario.append(info["scenario"])
+            else:
+                commands.append(np.asarray(action, dtype=np.float64))
+                steering.append(task.vehicle.steering_angle(physics.raw_data))
+                scenario.append(info["scenario"])
             if terminated or truncated:
                 break
         profile = task.comfort.profile(CONTROL_TIMESTEP)
@@ -85,13 +109,13 @@ def drive(seed: int, policy: str = "autopilot", time_limit: float | None = None)
     end = next((e for e in ENDS[:3] if info[e]), "time_limit")  # success, collision, off_route
     return Episode(
         seed,
-        policy,
+        policy if checkpoint is None else Path(checkpoint).stem,
         end,
         dict(info),
         profile,
         np.asarray(steering),
         tuple(scenario),
-        np.asarray(commands).reshape(-1, 3),
+        np.asarray(commands, dtype=np.float64).reshape(-1, 3),
     )
 
 
@@ -192,9 +216,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int_at_least(0), default=20000, help="task and episode seed")
     parser.add_argument("--policy", default="autopilot", choices=POLICIES)
     parser.add_argument("--time-limit", type=positive_float, default=None, help="[s] shorter episode (default: task's)")
+    parser.add_argument("--checkpoint", default=None, help="drive a trained policy (e.g. the hybrid agent) instead")
+    parser.add_argument("--name", default=None, help="the PNGs' name (default: the policy's or checkpoint's)")
     parser.add_argument("--out", default="results/urban/", help="folder for the PNGs")
     args = parser.parse_args(argv)
-    episode = drive(args.seed, args.policy, args.time_limit)
+    if args.checkpoint is not None and not Path(args.checkpoint).is_file():
+        parser.error(f"--checkpoint {args.checkpoint}: no such file")
+    episode = drive(args.seed, args.policy, args.time_limit, args.checkpoint)
     info = episode.info
     print(
         f"seed {args.seed}: {episode.end} after {info['elapsed_time']:.1f} s ({info['steps']} steps), "
@@ -205,7 +233,7 @@ def main(argv: list[str] | None = None) -> int:
     for key, value in episode.profile.metrics().as_dict().items():
         print(f"  {key:20s} {value:7.2f}")
     out = Path(args.out)
-    name = f"{args.policy}_seed{args.seed}"
+    name = f"{args.name or episode.policy}_seed{args.seed}"
     for path, span in ((out / f"{name}.png", None), (out / f"{name}_peak.png", peak_span(episode))):
         draw(episode, path, span)
         print(f"wrote {path}")
