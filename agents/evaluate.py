@@ -18,12 +18,11 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
-
 from mjdrive import suite
 from mjdrive.agents.algorithms import agent_from_payload
 from mjdrive.agents.checkpoints import load_checkpoint
 from mjdrive.agents.ensemble import describe, ensemble_agent
+from mjdrive.agents.observations import observation_mismatch
 from mjdrive.envs import make_env
 from mjdrive.record.summary import (
     COMFORT_COLUMNS,
@@ -59,17 +58,6 @@ class EvalPlan:
     task: str  # DOMAIN/TASK
     task_kwargs: dict[str, Any]  # the checkpoint's task keywords, then the user's
     actions: str  # the checkpoint's action set
-
-
-def observation_mismatch(trained: gym.spaces.Dict, given: gym.spaces.Dict) -> list[str]:
-    """What keeps a policy that reads `trained` observations from reading `given` ones: each entry it reads
-    that is missing, or of another shape or dtype ([] when it can read them; extra entries are ignored)."""
-    problems = [f"no {key!r}" for key in trained.spaces if key not in given.spaces]
-    for key, space in trained.spaces.items():
-        other = given.spaces.get(key)
-        if other is not None and (other.shape, other.dtype) != (space.shape, space.dtype):
-            problems.append(f"{key!r} is {other.shape} {other.dtype}, not {space.shape} {space.dtype}")
-    return problems
 
 
 def plan_evaluation(checkpoint: str | Path, task: str | None = None,

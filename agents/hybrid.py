@@ -24,6 +24,7 @@ import torch
 
 from mjdrive.agents.algorithms import agent_from_payload
 from mjdrive.agents.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
+from mjdrive.agents.observations import observation_mismatch
 from mjdrive.agents.train import INFERENCE_KEYS
 from mjdrive.tasks.decisions import ACTIONS
 from mjdrive.tasks.urban import SCENARIOS
@@ -112,7 +113,6 @@ def hybrid_agent(payload: dict, path: str | Path) -> HybridAgent:
 def save_hybrid(members: dict[str, str | Path], out: str | Path, task: str = "urban/concatenated") -> Path:
     """Write a hybrid checkpoint for `task` of the agents `members` (scenario -> checkpoint or policy.pt), each
     trained on `urban/<scenario>` with decisions; they must read the observation `task` gives."""
-    from mjdrive.agents.evaluate import observation_mismatch
     from mjdrive.envs import make_env
 
     unknown = sorted(set(members) - set(DECIDING))

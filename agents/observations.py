@@ -1,7 +1,8 @@
-"""Batched observations as torch tensors."""
+"""Batched observations as torch tensors; whether a policy can read another env's observations."""
 
 from __future__ import annotations
 
+import gymnasium as gym
 import numpy as np
 import torch
 
@@ -24,3 +25,14 @@ class ObsBatch:
         image = layout.image(obs)
         return cls(torch.as_tensor(layout.features(obs), device=device),
                    None if image is None else torch.as_tensor(image, device=device))
+
+
+def observation_mismatch(trained: gym.spaces.Dict, given: gym.spaces.Dict) -> list[str]:
+    """What keeps a policy that reads `trained` observations from reading `given` ones: each entry it reads
+    that is missing, or of another shape or dtype ([] when it can read them; extra entries are ignored)."""
+    problems = [f"no {key!r}" for key in trained.spaces if key not in given.spaces]
+    for key, space in trained.spaces.items():
+        other = given.spaces.get(key)
+        if other is not None and (other.shape, other.dtype) != (space.shape, space.dtype):
+            problems.append(f"{key!r} is {other.shape} {other.dtype}, not {space.shape} {space.dtype}")
+    return problems

@@ -116,7 +116,7 @@ def test_every_committed_checkpoint_loads_with_weights_only():
     assert len(COMMITTED) >= 10
     for path in COMMITTED:
         payload = load_checkpoint(path)
-        assert payload["algo"] in ("sac", "dqn", "ppo", "trpo", "ensemble"), path
+        assert payload["algo"] in ("sac", "dqn", "ppo", "trpo", "ppo_discrete", "ensemble", "hybrid"), path
         torch.load(path, map_location="cpu", weights_only=True)  # no allow-list needed at all
 
 

@@ -17,6 +17,7 @@ like the paper's; comfort and time over successful episodes only.
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from pathlib import Path
@@ -24,7 +25,9 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
+from mjdrive import suite
 from mjdrive.cli import ArgumentParser, int_at_least, run_reporting_errors
+from mjdrive.config import parse_task_kwargs
 from mjdrive.envs import make_env
 from mjdrive.envs.fanout import fan_out
 from mjdrive.policies import DECISION_POLICIES, POLICIES, make_policy
@@ -36,19 +39,19 @@ COLUMNS = ("success [%]", "p95 jerk [m/s^3]", "max jerk [m/s^3]", "p95 accel [m/
            "p95 jerk unfiltered [m/s^3]", "max jerk unfiltered [m/s^3]")
 
 
-_ENVS: dict[tuple[str, bool], gym.Env] = {}  # this process's env of the last task (a worker keeps it)
+_ENVS: dict[tuple[str, bool, str], gym.Env] = {}  # this process's env of the last task (a worker keeps it)
 
 
-def task_env(task: str, decisions: bool = False) -> gym.Env:
-    """The urban `task`'s env (with the decision action set or not), built once per process (the concatenated
-    route's takes ~0.4 s); an episode's reset with its seed sets all of its state, so a reused env drives the
-    episode a new one would."""
-    key = (task, decisions)
+def task_env(task: str, decisions: bool = False, kwargs: str = "{}") -> gym.Env:
+    """The urban `task`'s env (with the decision action set or not, and the task keywords `kwargs` as JSON),
+    built once per process (the concatenated route's takes ~0.4 s); an episode's reset with its seed sets all of
+    its state, so a reused env drives the episode a new one would."""
+    key = (task, decisions, kwargs)
     if key not in _ENVS:
         for env in _ENVS.values():
             env.close()
         _ENVS.clear()
-        _ENVS[key] = make_env("urban", task, decisions=decisions)
+        _ENVS[key] = make_env("urban", task, decisions=decisions, **json.loads(kwargs))
     return _ENVS[key]
 
 
@@ -68,18 +71,18 @@ def checkpoint_policy(path: str) -> tuple[object, bool]:
     return _AGENTS[path]
 
 
-def episode(spec: tuple[str, str, int], index: int) -> dict:
-    """Episode `index` of (task, policy, first seed): its end and metrics (a fan-out job: depends only on
-    its arguments)."""
-    task, policy, seed = spec
+def episode(spec: tuple[str, str, int, str], index: int) -> dict:
+    """Episode `index` of (task, policy, first seed, task keywords as JSON): its end and metrics (a fan-out job:
+    depends only on its arguments)."""
+    task, policy, seed, kwargs = spec
     if policy.startswith(CHECKPOINT):
         agent, decisions = checkpoint_policy(policy.removeprefix(CHECKPOINT))
-        env = task_env(task, decisions)
+        env = task_env(task, decisions, kwargs)
 
         def act(observation: dict):
             return agent.act({key: value[None] for key, value in observation.items()})[0]
     else:
-        env = task_env(task, policy in DECISION_POLICIES)
+        env = task_env(task, policy in DECISION_POLICIES, kwargs)
         act = make_policy(policy, env, seed + index)
     observation, info = env.reset(seed=seed + index)
     while True:
@@ -96,9 +99,11 @@ def episode(spec: tuple[str, str, int], index: int) -> dict:
             "scenario": info["scenario"]}
 
 
-def run(task: str, policy: str, episodes: int, seed: int, workers: int = 0, ray: str | None = None) -> list[dict]:
+def run(task: str, policy: str, episodes: int, seed: int, workers: int = 0, ray: str | None = None,
+        task_kwargs: dict | None = None) -> list[dict]:
     """Rows of episodes 0..episodes-1 in episode order, on `workers` processes (0: here) or Ray
-    (`mjdrive.envs.fanout`): the same rows for any number of workers."""
+    (`mjdrive.envs.fanout`): the same rows for any number of workers. `task_kwargs`: more task keywords (e.g.
+    `road_users`)."""
     start, done = time.perf_counter(), [0]
 
     def report(index: int, row: dict) -> None:
@@ -106,7 +111,8 @@ def run(task: str, policy: str, episodes: int, seed: int, workers: int = 0, ray:
         print(f"[{done[0]}/{episodes}] seed {row['seed']}: {row['end']} after {row['time']:.1f} s "
               f"({time.perf_counter() - start:.0f} s)", file=sys.stderr, flush=True)
 
-    rows = fan_out(episode, (task, policy, seed), range(episodes), workers=workers, ray=ray, on_result=report)
+    kwargs = json.dumps(task_kwargs or {}, sort_keys=True)
+    rows = fan_out(episode, (task, policy, seed, kwargs), range(episodes), workers=workers, ray=ray, on_result=report)
     for env in _ENVS.values():  # this process's (when the episodes ran here); workers' go with them
         env.close()
     _ENVS.clear()
@@ -119,7 +125,7 @@ SHOWN = 8  # failed episodes named per driver
 
 
 def markdown(task: str, policies: str | list[str], rows: list[dict] | list[list[dict]], seed: int,
-             checkpoints: dict[str, str] | None = None) -> str:
+             checkpoints: dict[str, str] | None = None, task_kwargs: dict | None = None) -> str:
     """The table of one run: a row per driver (`checkpoints` by name, then `policies`, with their episodes'
     `rows` in that order), the paper's rows."""
     if isinstance(policies, str):
@@ -128,6 +134,7 @@ def markdown(task: str, policies: str | list[str], rows: list[dict] | list[list[
     n = len(rows[0])
     command = "".join(f' --checkpoint "{name}={path}"' for name, path in checkpoints.items())
     command += f" --policy {' '.join(policies)}" if policies else ""
+    command += "".join(f" --task-kwarg '{key}={json.dumps(value)}'" for key, value in (task_kwargs or {}).items())
     names = [*checkpoints, *(DRIVER_NAMES.get(p, p) for p in policies)]
     lines = [f"# Table 2 on urban/{task}: {', '.join(names)}", "",
              f"`python -m tools.urban_table2 --task {task}{command} --episodes {n} "
@@ -173,8 +180,15 @@ def main(argv: list[str] | None = None) -> int:
                         help="worker processes (0: run the episodes here, in order); same rows for any N")
     parser.add_argument("--ray", default=None, metavar="ADDRESS",
                         help="run the episodes as Ray tasks ('local' for a private Ray of --workers CPUs)")
+    parser.add_argument("--task-kwarg", action="append", default=[], metavar="KEY=VALUE",
+                        help="a task keyword for every driver, e.g. road_users='{\"car\": 13}' (repeatable)")
     parser.add_argument("--out", default=None, help="write the markdown table here")
     args = parser.parse_args(argv)
+    task_kwargs = parse_task_kwargs(args.task_kwarg)
+    if "decisions" in task_kwargs:
+        parser.error("--task-kwarg decisions=...: each driver sets it (the decision drivers and checkpoints use them)")
+    config_class, defaults = suite.task_config("urban", args.task)
+    config_class.from_dict(task_kwargs, defaults, where=f"urban/{args.task}")  # a bad keyword: its one-line error
     checkpoints = {}
     for item in args.checkpoint:
         name, sep, path = item.partition("=")
@@ -186,8 +200,9 @@ def main(argv: list[str] | None = None) -> int:
         checkpoints[name] = path
     policies = args.policy if args.policy is not None else ([] if checkpoints else ["autopilot"])
     drivers = [CHECKPOINT + path for path in checkpoints.values()] + policies
-    rows = [run(args.task, driver, args.episodes, args.seed, args.workers, args.ray) for driver in drivers]
-    text = markdown(args.task, policies, rows, args.seed, checkpoints)
+    rows = [run(args.task, driver, args.episodes, args.seed, args.workers, args.ray, task_kwargs)
+            for driver in drivers]
+    text = markdown(args.task, policies, rows, args.seed, checkpoints, task_kwargs)
     publish(text, args.out)
     return 0
 
