@@ -70,3 +70,15 @@ def test_the_decisions_report_sets_the_agent_against_the_baselines_on_the_same_s
                                                         "| always_stop", "| rules"]
     assert table[2].startswith("| always_stop | 0 | 0 | 100 | - |")  # never arrives, never collides
     assert table[0] == row(f"agent `{agent.split('/')[-1]}`", run("crossroad", f"checkpoint={agent}", 1, seed=4))
+
+
+def test_a_checkpoint_drives_with_its_own_action_set():
+    """The end-to-end baseline acts with (pedal, steer): the tool builds its env with the checkpoint's actions."""
+    from pathlib import Path
+
+    import pytest
+
+    pytest.importorskip("torch")
+    path = Path(__file__).parents[1] / "results/checkpoints/ppo_urban_end_to_end.pt"
+    (row,) = run("merge", f"checkpoint={path}", 1, seed=3)
+    assert row["end"] in ("success", "collision", "off_route", "time_limit") and row["time"] > 0

@@ -39,19 +39,19 @@ COLUMNS = ("success [%]", "p95 jerk [m/s^3]", "max jerk [m/s^3]", "p95 accel [m/
            "p95 jerk unfiltered [m/s^3]", "max jerk unfiltered [m/s^3]")
 
 
-_ENVS: dict[tuple[str, bool, str], gym.Env] = {}  # this process's env of the last task (a worker keeps it)
+_ENVS: dict[tuple, gym.Env] = {}  # this process's env of the last task (a worker keeps it)
 
 
-def task_env(task: str, decisions: bool = False, kwargs: str = "{}") -> gym.Env:
-    """The urban `task`'s env (with the decision action set or not, and the task keywords `kwargs` as JSON),
-    built once per process (the concatenated route's takes ~0.4 s); an episode's reset with its seed sets all of
-    its state, so a reused env drives the episode a new one would."""
-    key = (task, decisions, kwargs)
+def task_env(task: str, decisions: bool = False, kwargs: str = "{}", actions: str = "continuous") -> gym.Env:
+    """The urban `task`'s env (with the decision action set or the continuous `actions`, and the task keywords
+    `kwargs` as JSON), built once per process (the concatenated route's takes ~0.4 s); an episode's reset with its
+    seed sets all of its state, so a reused env drives the episode a new one would."""
+    key = (task, decisions, kwargs, actions)
     if key not in _ENVS:
         for env in _ENVS.values():
             env.close()
         _ENVS.clear()
-        _ENVS[key] = make_env("urban", task, decisions=decisions, **json.loads(kwargs))
+        _ENVS[key] = make_env("urban", task, actions=actions, decisions=decisions, **json.loads(kwargs))
     return _ENVS[key]
 
 
@@ -59,15 +59,18 @@ CHECKPOINT = "checkpoint="  # a driver `checkpoint=PATH`: the policy of a checkp
 _AGENTS: dict[str, object] = {}  # this process's loaded checkpoints
 
 
-def checkpoint_policy(path: str) -> tuple[object, bool]:
-    """(the greedy agent of checkpoint `path`, whether it takes decisions), loaded once per process."""
+def checkpoint_policy(path: str) -> tuple[object, bool, str]:
+    """(the greedy agent of checkpoint `path`, whether it takes decisions, its action set), loaded once per
+    process."""
     from mjdrive.agents.evaluate import load_agent
 
     if path not in _AGENTS:
         agent, payload = load_agent(path)
         if not payload["config"]["task"].startswith("urban/"):
             raise ValueError(f"checkpoint {path} was trained on {payload['config']['task']}, not an urban task")
-        _AGENTS[path] = agent, bool(payload["config"].get("task_kwargs", {}).get("decisions"))
+        config = payload["config"]
+        _AGENTS[path] = (agent, bool(config.get("task_kwargs", {}).get("decisions")),
+                         config.get("actions", "continuous"))
     return _AGENTS[path]
 
 
@@ -76,8 +79,8 @@ def episode(spec: tuple[str, str, int, str], index: int) -> dict:
     depends only on its arguments)."""
     task, policy, seed, kwargs = spec
     if policy.startswith(CHECKPOINT):
-        agent, decisions = checkpoint_policy(policy.removeprefix(CHECKPOINT))
-        env = task_env(task, decisions, kwargs)
+        agent, decisions, actions = checkpoint_policy(policy.removeprefix(CHECKPOINT))
+        env = task_env(task, decisions, kwargs, actions)
 
         def act(observation: dict):
             return agent.act({key: value[None] for key, value in observation.items()})[0]
