@@ -236,7 +236,7 @@ def test_every_option_of_every_command_has_help_and_says_its_default():
 
     parser = build_parser()
     commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
-    assert set(commands) == {"list", "run", "drive", "replay", "logs", "bench", "train", "eval", "ensemble"}
+    assert set(commands) == {"list", "run", "drive", "replay", "logs", "bench", "train", "eval", "ensemble", "hybrid"}
     for name, command in commands.items():
         text = command.format_help()
         assert "(default: None)" not in text and "(default: [])" not in text, name

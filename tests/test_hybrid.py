@@ -103,3 +103,78 @@ def test_the_log_says_which_agent_decided_each_step_and_on_what(tmp_path, decisi
 
     replayed = replay(log)  # the decisions replay bit for bit like any other action
     assert replayed.checked == replayed.steps > 5 and replayed.mismatch_step is None
+
+
+def _drive_probability(agent, obs: dict) -> float:
+    """The policy's mean probability of "drive" (action 0) over a batch of observations."""
+    from mjdrive.agents.observations import ObsBatch
+
+    with torch.no_grad():
+        return float(agent.policy(ObsBatch.from_numpy(agent.layout, obs)).probs[:, 0].mean())
+
+
+def test_a_tiny_decision_agent_learns_to_drive_and_beats_always_stop(tmp_path):
+    """A learning test that can fail: TRPO (Fig. 6's network) on the crossroad's decisions for 2,048 decisions.
+    Its probability of "drive" on the states of a crossroad approach must rise by a margin over the untrained
+    policy's (same seed), and its greedy policy must arrive where always stop never does."""
+    from mjdrive.agents.algorithms import agent_class
+    from mjdrive.agents.config import apply_overrides, load_config
+    from mjdrive.agents.seeding import set_seed
+    from mjdrive.agents.train import train
+    from mjdrive.envs import make_env
+
+    config = apply_overrides(load_config("trpo_crossroad"), [
+        "steps=2048", "num_envs=8", "algorithm.rollout_steps=64", "algorithm.max_kl=0.05", "checkpoint_every=0",
+        "tensorboard=false", "torch_threads=1", "seed=0", "algorithm.hidden=[32, 32]",
+        "algorithm.extractor={groups: {ego: [ego, scenario], adversaries: [adversaries]}, hidden: [32, 32]}"])
+    env = make_env("urban", "crossroad", decisions=True)
+    rows, (obs, _) = [], env.reset(seed=77)
+    for _ in range(40):  # states of an approach to the crossroad and its crossing
+        rows.append(obs)
+        obs, _, terminated, truncated, _ = env.step(0)
+        if terminated or truncated:
+            break
+    states = {key: np.stack([row[key] for row in rows]) for key in rows[0]}
+    set_seed(0)
+    untrained = agent_class("trpo")(config, env.observation_space, env.action_space)
+    policy_path = train(config, tmp_path, progress=False)
+    trained, _ = load_agent(policy_path)
+    before, after = _drive_probability(untrained, states), _drive_probability(trained, states)
+    assert after > before + 0.1, (before, after)
+    arrived = 0
+    for seed in (10_000, 10_001):
+        obs, _ = env.reset(seed=seed)
+        while True:
+            obs, _, terminated, truncated, info = env.step(trained.act({k: v[None] for k, v in obs.items()})[0])
+            if terminated or truncated:
+                break
+        arrived += int(info["success"])
+    env.close()
+    assert arrived >= 1  # always stop arrives in none (it waits at the line until the time limit)
+
+
+def test_the_committed_hybrid_hands_control_between_agents_at_the_scenario_borders():
+    """The committed TRPO hybrid on the concatenated route's first 45 s: the roundabout's agent decides inside the
+    roundabout and "follow path" outside, switching at the steps where the active scenario changes."""
+    from pathlib import Path
+
+    from mjdrive.envs import make_env
+
+    hybrid, payload = load_agent(Path(__file__).parents[1] / "results/checkpoints/hybrid_trpo.pt")
+    assert set(payload["config"]["hybrid"]["members"]) == {"roundabout", "lane_change", "crossroad", "merge"}
+    env = make_env("urban", "concatenated", decisions=True, time_limit=45.0)
+    obs, info = env.reset(seed=20000)
+    seen = []
+    while True:
+        scenario = info["scenario"]
+        action = hybrid.act({k: v[None] for k, v in obs.items()})[0]
+        seen.append((scenario, hybrid.last[0][1]))
+        obs, _, terminated, truncated, info = env.step(action)
+        if terminated or truncated:
+            break
+    env.close()
+    agents = [agent for _, agent in seen]
+    assert "roundabout" in agents and "follow path" in agents
+    assert all(agent == (scenario if scenario != "follow" else "follow path") for scenario, agent in seen)
+    switches = [i for i in range(1, len(agents)) if agents[i] != agents[i - 1]]
+    assert switches and all(seen[i][0] != seen[i - 1][0] for i in switches)
