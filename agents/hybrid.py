@@ -61,7 +61,8 @@ class HybridAgent:
                  actions: tuple[str, ...]):
         self.members, self.actions = members, actions
         index = {name: i for i, name in enumerate(actions)}
-        self._map = {scenario: np.array([index[SAME.get(name, name)] for name in names])
+        # by name; a name the task lacks (a lane change on a task whose route has no two-lane road) is "drive"
+        self._map = {scenario: np.array([index.get(SAME.get(name, name), index["drive"]) for name in names])
                      for scenario, names in member_actions.items()}
         self._drive = index["drive"]
         self.last: list[tuple[str, str, str]] = []

@@ -45,6 +45,12 @@ def test_the_selector_hands_each_row_to_its_scenarios_member_by_action_name(tmp_
     assert len(set(chosen[rows["crossroad"]])) == 2 and len(set(chosen[rows["lane_change"]])) >= 2  # not constant
     assert (chosen[rows["follow"]] == 0).all() and (chosen[rows["roundabout"]] == 0).all()  # no member: drive
     assert hybrid.last[1][:2] == ("crossroad", "crossroad") and hybrid.last[0][1:] == ("follow path", "drive")
+    # on a scenario task the route's own actions: a lane-change member's left and right (no such action there) drive
+    single, _ = load_agent(save_hybrid(members, tmp_path / "crossroad_hybrid.pt", task="urban/crossroad"))
+    assert single.actions == ("drive", "stop")
+    chosen = single.act(obs)
+    assert (chosen[rows["lane_change"]] == 0).all()
+    np.testing.assert_array_equal(chosen[rows["crossroad"]], crossroad.act(sub(rows["crossroad"])))
 
 
 def test_a_changed_member_weight_or_a_wrong_member_is_refused(tmp_path, decision_agent_file):
