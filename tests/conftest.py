@@ -6,6 +6,21 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 
 @pytest.fixture
+def drive_episode():
+    """A function: (env, act, seed) -> the last step's info after driving one episode of `env` from a reset with
+    `seed`, `act(observation)` choosing each action, to its end (terminated or truncated)."""
+
+    def drive(env, act, seed: int) -> dict:
+        observation, info = env.reset(seed=seed)
+        while True:
+            observation, _, terminated, truncated, info = env.step(act(observation))
+            if terminated or truncated:
+                return info
+
+    return drive
+
+
+@pytest.fixture
 def decision_agent_file():
     """A factory: (folder, scenario, seed, **task kwargs) -> the path of an untrained TRPO decision agent of
     urban/<scenario> (random weights, decisive) saved as a policy file."""

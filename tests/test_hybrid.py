@@ -119,7 +119,7 @@ def _drive_probability(agent, obs: dict) -> float:
         return float(agent.policy(ObsBatch.from_numpy(agent.layout, obs)).probs[:, 0].mean())
 
 
-def test_a_tiny_decision_agent_learns_to_drive_and_beats_always_stop(tmp_path):
+def test_a_tiny_decision_agent_learns_to_drive_and_beats_always_stop(tmp_path, drive_episode):
     """A learning test that can fail: TRPO (Fig. 6's network) on the crossroad's decisions for 2,048 decisions.
     Its probability of "drive" on the states of a crossroad approach must rise by a margin over the untrained
     policy's (same seed), and its greedy policy must arrive where always stop never does."""
@@ -147,14 +147,10 @@ def test_a_tiny_decision_agent_learns_to_drive_and_beats_always_stop(tmp_path):
     trained, _ = load_agent(policy_path)
     before, after = _drive_probability(untrained, states), _drive_probability(trained, states)
     assert after > before + 0.1, (before, after)
-    arrived = 0
-    for seed in (10_000, 10_001):
-        obs, _ = env.reset(seed=seed)
-        while True:
-            obs, _, terminated, truncated, info = env.step(trained.act({k: v[None] for k, v in obs.items()})[0])
-            if terminated or truncated:
-                break
-        arrived += int(info["success"])
+    def act(obs: dict) -> int:
+        return trained.act({k: v[None] for k, v in obs.items()})[0]
+
+    arrived = sum(int(drive_episode(env, act, seed)["success"]) for seed in (10_000, 10_001))
     env.close()
     assert arrived >= 1  # always stop arrives in none (it waits at the line until the time limit)
 

@@ -82,15 +82,10 @@ def test_every_json_message_of_every_task_matches_its_channel_schema(domain, tas
 
 
 @pytest.mark.parametrize("task", ["crossroad", "concatenated"])
-def test_the_operative_channels_of_a_decision_episode_match_their_schemas(task, tmp_path):
+def test_the_operative_channels_of_a_decision_episode_match_their_schemas(task, tmp_path, drive_episode):
     """The decision action set adds /operative and /operative/plan and logs the decision in /action."""
     env = RecordEpisodes(make_env("urban", task, time_limit=4.0, decisions=True), tmp_path)
-    policy = make_policy("rules", env, 0)
-    observation, _ = env.reset(seed=0)
-    while True:
-        observation, _, terminated, truncated, _ = env.step(policy(observation))
-        if terminated or truncated:
-            break
+    drive_episode(env, make_policy("rules", env, 0), seed=0)
     ticks = env.unwrapped.task.control_ticks  # control periods per decision
     env.close()
     (path,) = sorted(tmp_path.glob("*.mcap"))

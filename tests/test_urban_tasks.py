@@ -124,15 +124,10 @@ def test_bad_keywords_are_refused():
         suite.load("urban", "merge", {"road_users": {"pedestrian": 2}})
 
 
-def test_no_zipper_deadlock_where_the_left_lane_tapers_off():
+def test_no_zipper_deadlock_where_the_left_lane_tapers_off(drive_episode):
     """Seed 20064 of Table 2: a motorcycle waited at the taper's give-way line for a car standing just
     behind it on the continuing lane, which stood for the motorcycle (ahead in its corridor); the queue behind
     held the autopilot until the time limit. A standing car behind no longer makes a merging vehicle wait."""
     env = make_env("urban", "concatenated", random=20064, time_limit=200.0)
-    act = make_policy("autopilot", env, 20064)
-    observation, info = env.reset(seed=20064)
-    while True:
-        observation, _, terminated, truncated, info = env.step(act(observation))
-        if terminated or truncated:
-            break
+    info = drive_episode(env, make_policy("autopilot", env, 20064), seed=20064)
     assert info["success"] and not info["collision"], (info["scenario"], info["elapsed_time"])

@@ -8,11 +8,25 @@ that the roundabout and urban tasks reward (their logs replay bit for bit agains
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from mjdrive.compiled import announce_compilation, inline, jit
 from mjdrive.roads import _spatial as sp
 from mjdrive.roads.lane import Lane
+
+
+class Segments(NamedTuple):
+    """A route lane's centre polyline as the kernels read it, each (S,): start x, y [m], unit tangent x, y, length
+    [m], start s [m]."""
+
+    x0: np.ndarray
+    y0: np.ndarray
+    tx: np.ndarray
+    ty: np.ndarray
+    length: np.ndarray
+    s0: np.ndarray
 
 
 class RouteFrame:
@@ -29,6 +43,7 @@ class RouteFrame:
         self.tangent = table[:, sp.TX:sp.TY + 1].copy()
         self.tx, self.ty = table[:, sp.TX].copy(), table[:, sp.TY].copy()
         self.s0 = table[:, sp.S0].copy()
+        self.segments = Segments(self.x0, self.y0, self.tx, self.ty, self.length, self.s0)  # the same arrays
         self.segment = 0
         announce_compilation()
 

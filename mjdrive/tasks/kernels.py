@@ -99,14 +99,15 @@ def urban_ego(qpos: np.ndarray, qvel: np.ndarray, qa: int, va: int, x0: np.ndarr
 
 
 @jit
-def roundabout_ego(qpos: np.ndarray, qvel: np.ndarray, qa: int, va: int, length: float, width: float, x0: np.ndarray,
-                   y0: np.ndarray, tx: np.ndarray, ty: np.ndarray, seg_length: np.ndarray, s0: np.ndarray, lo: int,
-                   hi: int, corners: np.ndarray, offsets: np.ndarray):
+def roundabout_ego(qpos: np.ndarray, qvel: np.ndarray, qa: int, va: int, length: float, width: float, segments,
+                   lo: int, hi: int, corners: np.ndarray, offsets: np.ndarray):
     """The roundabout task's ego update in one pass: `Vehicle.planar_state` of the free joint at qpos[qa], qvel[va];
     the car's `footprint` (length x width [m]) into `corners` (4, 2) [m]; `RouteFrame.__call__` of its centre and
-    corners on the segments lo..hi (x0 ... s0), the corners' offsets [m] into `offsets` (4,); the heading error
-    [rad] to the centre's segment, wrapped as `wrap_angle` wraps a float. Returns (x, y, yaw, forward, left,
-    yaw rate, cos yaw, sin yaw, s, d, segment, heading error)."""
+    corners on the `segments` (`route_frame.Segments`) lo..hi, the corners' offsets [m] into `offsets` (4,); the
+    heading error [rad] to the centre's segment, wrapped as `wrap_angle` wraps a float. Returns (x, y, yaw,
+    forward, left, yaw rate, cos yaw, sin yaw, s, d, segment, heading error)."""
+    x0, y0, tx, ty, seg_length, s0 = (segments.x0, segments.y0, segments.tx, segments.ty, segments.length,
+                                      segments.s0)
     px, py, yaw, forward, left, yaw_rate = chassis_state(
         qpos[qa], qpos[qa + 1], qpos[qa + 3], qpos[qa + 4], qpos[qa + 5], qpos[qa + 6],
         qvel[va], qvel[va + 1], qvel[va + 2], qvel[va + 3], qvel[va + 4], qvel[va + 5])

@@ -254,8 +254,8 @@ class RoundaboutTask(DrivingTask):
         self.corners, self.corner_offsets = self._corner_buffers  # filled in place: read within this step only
         (x, y, yaw, self.speed, self._left, self.yaw_rate, c, s, self.route_s, self.lane_offset, frame.segment,
          self.heading_error) = kernels.roundabout_ego(
-            data.qpos, data.qvel, qa, va, self.params.length, self.params.width, frame.x0, frame.y0, frame.tx,
-            frame.ty, frame.length, frame.s0, lo, hi, self.corners, self.corner_offsets)
+            data.qpos, data.qvel, qa, va, self.params.length, self.params.width, frame.segments, lo, hi, self.corners,
+            self.corner_offsets)
         self._chassis = yaw, self.speed, self._left  # `read_chassis`' hand-over to the comfort sample
         self.xy, self.yaw, self._yaw_cos_sin = np.array([x, y]), yaw, (c, s)
         self._frame_time = data.time
