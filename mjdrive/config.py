@@ -19,6 +19,7 @@ import difflib
 import enum
 import json
 import math
+import os
 import re
 import types
 import typing
@@ -91,6 +92,21 @@ class _Invalid(Exception):
     """Internal: why one value does not fit its type or spec (turned into a ConfigError with the keyword)."""
 
 
+class _Nested(_Invalid):
+    """Internal: a nested config's own ConfigError, reported under a dotted path (`map.crossroad.lane_width=6`)."""
+
+    def __init__(self, message: str, source: str = "") -> None:
+        super().__init__(message)
+        self.source = source  # " (file 'm.yaml')" when the keywords came from a file
+
+
+def _nested_message(name: str, error: _Nested) -> str:
+    """`name.inner=...: why` for a nested keyword's error, `name: why` for one about the nested keywords."""
+    inner = str(error)
+    dotted = re.match(r"^[A-Za-z_]\w*[.=:]", inner) is not None
+    return f"{name}{error.source}{'.' if dotted else ': '}{inner}"
+
+
 def _check_bounds(value: float, spec: Spec) -> None:
     bad = ((spec.ge is not None and not value >= spec.ge) or (spec.gt is not None and not value > spec.gt)
            or (spec.le is not None and not value <= spec.le) or (spec.lt is not None and not value < spec.lt))
@@ -108,6 +124,8 @@ def _convert(value: Any, tp: Any, spec: Spec) -> Any:
         for option in (a for a in args if a is not type(None)):
             try:
                 return _convert(value, option, spec)
+            except _Nested:
+                raise
             except _Invalid as error:
                 reasons.append(str(error))
         # the value has a right type but not a right size, or a list/mapping of the right type a bad element
@@ -191,17 +209,38 @@ def _convert(value: Any, tp: Any, spec: Spec) -> Any:
     if isinstance(tp, type) and issubclass(tp, Config):
         if isinstance(value, tp):
             return value
+        source = ""
+        if isinstance(value, str | os.PathLike):
+            value, source = _read_mapping(value), f" (file {os.fspath(value)!r})"
         if isinstance(value, Mapping):
             try:
                 return tp.from_dict(value)
             except ConfigError as error:
-                raise _Invalid(f"has a bad entry: {error}") from None
-        raise _Invalid(f"must be a mapping of {tp.__name__} keywords")
+                raise _Nested(str(error), source) from None
+        raise _Invalid(f"must be a mapping of {tp.__name__} keywords, or the path of a YAML or JSON file of them")
     if isinstance(tp, type):
         if isinstance(value, tp):
             return value
         raise _Invalid(f"must be a {tp.__module__.split('.')[0]}.{tp.__qualname__}")
     raise TypeError(f"config fields of type {tp!r} are not supported")  # a bug in a Config declaration
+
+
+def _read_mapping(path: str | os.PathLike) -> Mapping:
+    """The keywords in a YAML or JSON file (a nested config given by path); an error naming the file if it cannot
+    be read or is not a mapping."""
+    name = os.fspath(path)
+    try:
+        with open(name, encoding="utf-8") as file:
+            data = parse_yaml(file.read())  # JSON is YAML
+    except OSError as error:
+        raise _Nested(f"cannot read the file {name!r}: {error.strerror or error}") from None
+    except (yaml.YAMLError, UnicodeDecodeError) as error:
+        mark = getattr(error, "problem_mark", None)
+        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+        raise _Nested(f"the file {name!r} is not YAML or JSON{where}") from None
+    if not isinstance(data, Mapping):
+        raise _Nested(f"the file {name!r} must hold a mapping of keywords, not {type(data).__name__}")
+    return data
 
 
 @dataclass(frozen=True)
@@ -214,6 +253,8 @@ class Config:
             value = getattr(self, field.name)
             try:
                 converted = _convert(value, hints[field.name], _spec(field))
+            except _Nested as error:
+                raise ConfigError(_nested_message(field.name, error)) from None
             except _Invalid as error:
                 raise ConfigError(f"{field.name}={_show(value)}: {error}") from None
             object.__setattr__(self, field.name, converted)
@@ -243,12 +284,27 @@ class Config:
                 raise
             raise ConfigError(f"{where}: {error}") from None
 
+    @classmethod
+    def load(cls, value: Mapping[str, Any] | str | os.PathLike, name: str = "config"):
+        """The config of a mapping of keywords or of the path of a YAML or JSON file of them (what a nested
+        config keyword takes); ConfigError naming `name`, the file and the keyword otherwise."""
+        try:
+            return _convert(value, cls, Spec(doc=""))
+        except _Nested as error:
+            raise ConfigError(_nested_message(name, error)) from None
+        except _Invalid as error:
+            raise ConfigError(f"{name}={_show(value)}: {error}") from None
+
     def to_dict(self) -> dict[str, Any]:
-        """Field -> value, nested configs as dicts (JSON-friendly apart from a RandomState seed)."""
+        """Field -> value, nested configs as dicts, enums by name (JSON-friendly apart from a RandomState seed)."""
         out = {}
         for field in dataclasses.fields(self):
             value = getattr(self, field.name)
-            out[field.name] = value.to_dict() if isinstance(value, Config) else value
+            if isinstance(value, Config):
+                value = value.to_dict()
+            elif isinstance(value, enum.Enum):
+                value = value.name.lower()  # what the keyword takes, and JSON
+            out[field.name] = value
         return out
 
     @classmethod
@@ -270,20 +326,34 @@ class Config:
             if spec.keys is not None:
                 allowed.append("keys " + ", ".join(spec.keys))
             tp = hints[field.name]
-            if isinstance(tp, type) and issubclass(tp, Config):
-                allowed.append(f"keywords of {tp.__name__}")
+            if _nested_config(tp) is not None:
+                allowed.append(f"keywords of {_nested_config(tp).__name__}")
             rows.append({"name": field.name, "type": _type_name(tp), "default": _default_text(default),
                          "unit": spec.unit, "allowed": "; ".join(allowed), "doc": spec.doc})
         return rows
 
     @classmethod
-    def markdown(cls, defaults: Mapping[str, Any] | None = None) -> str:
-        """The `describe()` rows as a markdown table."""
+    def markdown(cls, defaults: Mapping[str, Any] | None = None, prefix: str = "") -> str:
+        """The `describe()` rows as a markdown table, then one table per nested config keyword (`map.crossroad`:
+        the keywords of its config class), depth first."""
         lines = ["| keyword | type | default | unit | allowed | what |", "| --- | --- | --- | --- | --- | --- |"]
         for row in cls.describe(defaults):
             cells = [f"`{row['name']}`", row["type"], f"`{row['default']}`", row["unit"], row["allowed"], row["doc"]]
             lines.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
+        hints = typing.get_type_hints(cls)
+        for field in dataclasses.fields(cls):
+            nested = _nested_config(hints[field.name])
+            if nested is not None:
+                name = f"{prefix}{field.name}"
+                lines += ["", f"`{name}`: keywords of {nested.__name__} (a mapping, or the path of a YAML or JSON "
+                          "file of them)", "", nested.markdown(prefix=name + ".")]
         return "\n".join(lines)
+
+
+def _nested_config(tp: Any) -> type[Config] | None:
+    """The Config class a keyword of type `tp` takes (alone or in a union), or None."""
+    options = typing.get_args(tp) if typing.get_origin(tp) in (Union, types.UnionType) else (tp,)
+    return next((t for t in options if isinstance(t, type) and issubclass(t, Config)), None)
 
 
 def _default_text(value: Any) -> str:

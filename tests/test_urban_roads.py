@@ -307,10 +307,10 @@ def test_conflicts_on_the_route():
 
 VARIATIONS = [
     {},
-    {"junction": {"turn": "left"}},
-    {"junction": {"turn": "right", "main_lanes": 2}, "order": ("roundabout", "road", "crossroad")},
-    {"junction": {"crossing_angle": math.radians(60)}},
-    {"junction": {"crossing_angle": math.radians(120), "approach_length": 80.0}},
+    {"crossroad": {"turn": "left"}},
+    {"crossroad": {"turn": "right", "main_lanes": 2}, "order": ("roundabout", "road", "crossroad")},
+    {"crossroad": {"crossing_angle": math.radians(60)}},
+    {"crossroad": {"crossing_angle": math.radians(120), "approach_length": 80.0}},
     {"road": {"lanes": 3, "length": 300.0}},
     {"road": {"length": 150.0, "taper_length": 20.0}},
     {"merge": {"main_lanes": 2, "merge_angle": math.radians(30), "slip_radius": 30.0, "accel_length": 100.0}},
@@ -319,7 +319,7 @@ VARIATIONS = [
     {"roundabout": {"exit_arm": 3}},
     {"order": ("roundabout", "crossroad", "road", "merge")},
     {"order": ("road", "merge")},
-    {"road": {"exit_lanes": 2, "opposite_lanes": 2}, "junction": {"minor_lanes": 2, "turn": "left"},
+    {"road": {"exit_lanes": 2, "opposite_lanes": 2}, "crossroad": {"minor_lanes": 2, "turn": "left"},
      "order": ("road", "crossroad")},
 ]
 
@@ -337,7 +337,7 @@ def test_variations_build_a_connected_route(kwargs):
     piece = [rm.lanes[i].name.split("/")[0] for i in range(len(rm.lanes))]
     for a, b in zip(u.conflicts.lane_a, u.conflicts.lane_b, strict=True):
         assert piece[a] == piece[b]  # pieces meet only at their ports
-    turn = kwargs.get("junction", {}).get("turn")
+    turn = kwargs.get("crossroad", {}).get("turn")
     if turn:
         assert f"crossroad/approach->{turn}_0" in _names(rm, u.route)
 
@@ -360,13 +360,16 @@ BAD = [
     (roads.roundabout_piece, {"entry_arm": 4}, "entry_arm"),
     (roads.roundabout_piece, {"radius": 2.0}, "radius"),
     (roads.urban_route, {"order": ("road", "road")}, "order"),
-    (roads.urban_route, {"junction": {"turns": "left"}}, "turns"),
+    (roads.urban_route, {"crossroad": {"turns": "left"}}, "turns"),
+    (roads.urban_route, {"merge": {"merge_angle": 0.4, "slip_radius": 9.0}}, "slip_radius"),
+    (roads.urban_route, {"order": ("bridge",)}, "order"),
 ]
 
 
 @pytest.mark.parametrize("builder, kwargs, name", BAD, ids=[f"{b.__name__}-{n}" for b, _, n in BAD])
 def test_bad_parameters_raise_value_errors_naming_them(builder, kwargs, name):
-    with pytest.raises(ValueError, match=rf"^(unknown keyword '{name}'|{name}=.*: must be )"):
+    # the name alone, or a piece's (map.merge.slip_radius=...)
+    with pytest.raises(ValueError, match=rf"(^|: |\.)(unknown keyword '{name}'|{name}=.*: (must|element) )"):
         builder(**kwargs)
 
 

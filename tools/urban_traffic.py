@@ -1,16 +1,19 @@
 """Urban traffic health: each scenario map and the concatenated map at their default traffic, several
-seeds, so many simulated minutes each (traffic alone, no ego).
+seeds, so many simulated minutes each (traffic alone, no ego); or a map of your own (`--map`: the urban tasks'
+`map` keywords as YAML/JSON, or the path of a map file).
 
     python -m tools.urban_traffic --minutes 10 --seeds 5 --out results/urban/traffic.md
+    python -m tools.urban_traffic --map '{order: [crossroad], crossroad: {lane_width: 2.5}}' --seeds 3
 
 Checked at every traffic substep: overlapping road users (oriented boxes). Reported: the longest stop of a
-vehicle that is not queued behind a stopped leader (a vehicle stopped within QUEUE_GAP of a stopped leader on
-its path is queued), the longest stop of any vehicle, and the throughput of every conflict zone (vehicles per
-minute leaving either of its lanes), and the traffic update's wall time per simulated second.
+vehicle that is not queued (`Traffic.queued`: within QUEUE_GAP behind a slow leader on its path), the longest
+stop of any vehicle, the throughput of every conflict zone (vehicles per minute leaving either of its lanes),
+and the traffic update's wall time per simulated second.
 """
 
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 from pathlib import Path
@@ -18,33 +21,23 @@ from pathlib import Path
 import numpy as np
 
 from mjdrive.cli import ArgumentParser, int_at_least, positive_float, run_reporting_errors
+from mjdrive.config import parse_value
 from mjdrive.roads.conflicts import CROSSING
 from mjdrive.roads.urban import concatenated
+from mjdrive.roads.urban_params import UrbanMap
 from mjdrive.traffic import overlapping_pairs
+from mjdrive.traffic.model import QUEUE_GAP, STOPPED_SPEED
 from mjdrive.traffic.urban import default_counts, urban_traffic
 from tools.report import publish
 
 MAPS = {"roundabout": ("roundabout",), "lane_change": ("road",), "crossroad": ("crossroad",),
         "merge": ("merge",), "concatenated": ("roundabout", "road", "crossroad", "merge")}
-STOPPED = 0.1  # [m/s]
-QUEUE_GAP = 8.0  # [m] bumper to bumper behind a stopped leader: queued
 
 
-def path_leaders(traffic) -> tuple[np.ndarray, np.ndarray]:
-    """Gap [m] to the nearest agent ahead on each vehicle's planned path and that agent's speed [m/s]."""
-    agents, vehicles = traffic.agents(), traffic.vehicles
-    nv = traffic.nv
-    pos = agents.offset[:nv, agents.path[:, 0]] + agents.s[None]  # (V, A) [m]
-    ahead = pos > vehicles.s[:, None]
-    ahead[np.arange(nv), np.arange(nv)] = False
-    gap = np.where(ahead, pos - vehicles.s[:, None] - (vehicles.length[:, None] + agents.length[None]) / 2, np.inf)
-    leader = np.argmin(gap, axis=1)
-    return gap[np.arange(nv), leader], agents.v[leader]
-
-
-def run(name: str, seed: int, minutes: float) -> dict:
-    """One map, one seed: overlap substeps, stops, zone throughput, cost."""
-    composed = concatenated(order=MAPS[name])
+def run(name: str | UrbanMap, seed: int, minutes: float) -> dict:
+    """One map (a registered map's name or an UrbanMap), one seed: overlap substeps, stops, zone throughput,
+    cost."""
+    composed = concatenated(order=MAPS[name]) if isinstance(name, str) else concatenated(name)
     traffic = urban_traffic(composed)
     traffic.reset(np.random.default_rng(seed))
     dt = traffic.config.substep
@@ -65,18 +58,26 @@ def run(name: str, seed: int, minutes: float) -> dict:
         left = (lane_before >= 0) & (lane_now != lane_before)
         np.add.at(passes, lane_before[left], 1)
         lane_before = lane_now
-        speed = traffic.velocities()[traffic.vehicle_slots]
-        still = traffic.vehicles.active & (np.hypot(speed[:, 0], speed[:, 1]) < STOPPED)
+        still = traffic.stopped()
         stopped = np.where(still, stopped + dt, 0.0)
         if step % decision == 0:
-            gap, leader_speed = path_leaders(traffic)
-            queued = (gap < QUEUE_GAP) & (leader_speed < 0.5)
+            queued = traffic.queued()
         excused_free = np.where(still & ~queued, excused_free + dt, 0.0)
         worst_any, worst_free = max(worst_any, stopped.max()), max(worst_free, excused_free.max())
     throughput = (passes[zones.lane_a] + passes[zones.lane_b]) / minutes  # (Z,) vehicles per minute
     return {"overlaps": overlap_substeps, "stop_free": worst_free, "stop_any": worst_any,
             "throughput": throughput, "cost": traffic.cpu_time / (minutes * 60.0), "stats": dict(traffic.stats),
             "zones": zones, "road_map": composed.road_map, "counts": default_counts(composed)}
+
+
+def map_argument(text: str) -> UrbanMap:
+    """`--map`: UrbanMap keywords as YAML/JSON, or a map file's path; argparse's one-line error otherwise."""
+    try:
+        map_config = UrbanMap.load(parse_value(text), "--map")
+        concatenated(map_config)  # pieces that overlap: refused here, not after the first run
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+    return map_config
 
 
 def bench(seconds: float = 60.0, control_period: float = 0.1, seed: int = 0) -> str:
@@ -126,8 +127,8 @@ def report(results: dict[str, list[dict]], minutes: float, seeds: int) -> str:
         "(no ego), urban rules (`mjdrive.traffic.urban`).",
         "",
         "- overlaps: traffic substeps (every 0.02 s) in which two road users' boxes overlap;",
-        f"- free stop: the longest time a vehicle stood still (< {STOPPED} m/s) while not queued behind a "
-        f"stopped leader within {QUEUE_GAP:g} m (waiting at a give-way line counts);",
+        f"- free stop: the longest time a vehicle stood still (< {STOPPED_SPEED} m/s) while not queued "
+        f"(`Traffic.queued`: within {QUEUE_GAP:g} m behind a slow leader) (waiting at a give-way line counts);",
         "- any stop: the longest stop of any vehicle, queued or not;",
         "- throughput: vehicles per minute through each conflict zone (leaving either of its lanes), mean over "
         "seeds; min / median / max over the map's zones;",
@@ -165,15 +166,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--maps", nargs="*", default=list(MAPS), choices=list(MAPS))
     parser.add_argument("--out", default=None, help="write the markdown report here")
     parser.add_argument("--bench", action="store_true", help="only the traffic cost in a MuJoCo world")
+    parser.add_argument("--map", default=None, type=map_argument,
+                        help="a map of your own instead of --maps: the urban tasks' map keywords as YAML/JSON, or "
+                        "the path of a map file")
     args = parser.parse_args(argv)
+    maps: list[str | UrbanMap] = [args.map] if args.map is not None else args.maps
     if args.bench:
         print(bench())
         return 0
     results: dict[str, list[dict]] = {}
-    total, done, start = len(args.maps) * args.seeds, 0, time.perf_counter()
-    for name in args.maps:
+    total, done, start = len(maps) * args.seeds, 0, time.perf_counter()
+    for chosen in maps:
+        name = chosen if isinstance(chosen, str) else "map"
         for seed in range(args.seeds):
-            result = run(name, seed, args.minutes)
+            result = run(chosen, seed, args.minutes)
             results.setdefault(name, []).append(result)
             done += 1
             print(f"[{done}/{total}] {name} seed {seed}: overlaps {result['overlaps']}, free stop "

@@ -1,9 +1,9 @@
 """`python -m mjdrive.envs.compile_kernels`: compile every numba kernel into the on-disk cache once (`make install`
 runs it), so that no env or worker pays the compilation later: by stepping a roundabout env (with pedestrians) and
 the concatenated urban route (the traffic's kernels, the tasks' ego updates and observations, the substep loop),
-querying a leader, a decision env (the operative level's MPC check, the ego's give-way query), and the scripted
-drivers' lane kernels on their routes. Prints where the cache is and how long
-it took; `uncompiled()` names the kernels a process has not compiled or loaded yet."""
+querying a leader and the queues, a decision env (the operative level's MPC check, the ego's give-way query), and
+the scripted drivers' lane kernels on their routes. Prints where the cache is and how long it took; `uncompiled()`
+names the kernels a process has not compiled or loaded yet."""
 
 from __future__ import annotations
 
@@ -47,6 +47,7 @@ def compile_kernels() -> float:
             env.step(action)
         traffic, route = env.task.traffic, env.task.route_lane
         traffic.leader(traffic.vehicles.path[0], 0.0)
+        traffic.queued()
         if domain == "urban":
             env.task.relevant_point()
             traffic.give_way(env.task.ego_state(env.physics))

@@ -22,7 +22,13 @@ from mjdrive.roads.urban import (
     tactical_trajectory,
     urban_route,
 )
-from mjdrive.roads.urban_params import CrossroadParams, MergeParams, OvertakingRoadParams, RoundaboutParams
+from mjdrive.roads.urban_params import (
+    CrossroadParams,
+    MergeParams,
+    OvertakingRoadParams,
+    RoundaboutParams,
+    UrbanMap,
+)
 from mjdrive.roads.urban_pieces import crossroad, merge_road, overtaking_road, roundabout_piece
 
 __all__ = [
@@ -32,6 +38,6 @@ __all__ = [
     # study 002: composable pieces, routes, tactical trajectory, conflict zones
     "FOLLOW", "ComposedMap", "ConflictZones", "CrossroadParams", "MergeParams", "OvertakingRoadParams", "Piece",
     "Port", "RoundaboutParams", "RouteConflicts", "RouteWaypoints", "ScenarioSpan", "TacticalTrajectory",
-    "UrbanRoute", "compose", "concatenated", "conflict_zones", "crossroad", "merge_road", "overtaking_road",
+    "UrbanMap", "UrbanRoute", "compose", "concatenated", "conflict_zones", "crossroad", "merge_road", "overtaking_road",
     "plan_route", "roundabout_piece", "route_through", "tactical_trajectory", "urban_route",
 ]

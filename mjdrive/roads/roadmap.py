@@ -21,6 +21,9 @@ from mjdrive.roads import _spatial as sp
 from mjdrive.roads.geometry import STEP, wrap_angle
 from mjdrive.roads.lane import Lane, Marking
 
+MAIN_ROAD, MINOR_ROAD = 0, 1  # the groups of `RoadMap.junction_entries` (a junction's signal groups)
+
+
 LANE_CELL = 5.0  # [m] grid cell for `locate`
 LANE_MARGIN = 8.0  # [m] lane segments within this distance of a cell are listed in it
 CHUNK = 16  # segments per chunk (bounding circle) for `locate` far from the lanes
@@ -134,6 +137,8 @@ class RoadMap:
         self.areas: list[np.ndarray] = []  # convex polygons (K,2) [m] of paved area outside lane strips
         self.crosswalks: list[Crosswalk] = []
         self.give_way: list[tuple[int, float]] = []  # give-way lines across lanes: (lane id, s [m])
+        # lanes entering a junction that signals or signs can control: (lane id, group: MAIN_ROAD or MINOR_ROAD)
+        self.junction_entries: list[tuple[int, int]] = []
         self._names: dict[str, int] = {}
         self._frozen: _Frozen | None = None
 
@@ -197,6 +202,7 @@ class RoadMap:
         for cw in other.crosswalks:
             self.crosswalks.append(Crosswalk(tf(cw.centre), cw.heading + rotation, cw.length, cw.width))
         self.give_way.extend((base + lane, s) for lane, s in other.give_way)
+        self.junction_entries.extend((base + lane, group) for lane, group in other.junction_entries)
         return base
 
     def freeze(self) -> RoadMap:

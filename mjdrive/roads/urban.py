@@ -6,16 +6,17 @@ the route), plus the concatenated map of Fig. 8: roundabout -> two-lane road -> 
 from __future__ import annotations
 
 import bisect
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from mjdrive.config import ConfigError
 from mjdrive.roads.conflicts import ConflictZones, RouteConflicts, conflict_zones
 from mjdrive.roads.lane import Lane
 from mjdrive.roads.ports import SCENARIOS, ComposedMap, Piece, compose
 from mjdrive.roads.roadmap import RoadMap
-from mjdrive.roads.urban_params import CrossroadParams, MergeParams, OvertakingRoadParams, RoundaboutParams, check
+from mjdrive.roads.urban_params import UrbanMap, check
 from mjdrive.roads.urban_pieces import crossroad, merge_road, overtaking_road, roundabout_piece
 
 FOLLOW = "follow"  # the scenario outside every interval of the tactical trajectory ("Follow Path")
@@ -180,31 +181,29 @@ def route_through(composed: ComposedMap) -> UrbanRoute:
                       zones.on_route(rm, route))
 
 
-def _params(cls, value):
-    if value is None or isinstance(value, cls):
-        return value or cls()
-    check(cls.__name__, value, isinstance(value, dict), f"a {cls.__name__} or a dict of its fields")
-    return cls.from_dict(value)
-
-
-def concatenated(
-    roundabout: RoundaboutParams | dict | None = None,
-    road: OvertakingRoadParams | dict | None = None,
-    junction: CrossroadParams | dict | None = None,
-    merge: MergeParams | dict | None = None,
-    order: Sequence[str] = ("roundabout", "road", "crossroad", "merge"),
-) -> ComposedMap:
-    """The pieces of Fig. 8 chained in `order` (names "roundabout", "road", "crossroad", "merge"; each at
-    most once), built from their parameters (dataclasses or dicts of their fields)."""
-    builders = {"roundabout": lambda: roundabout_piece(_params(RoundaboutParams, roundabout)),
-                "road": lambda: overtaking_road(_params(OvertakingRoadParams, road)),
-                "crossroad": lambda: crossroad(_params(CrossroadParams, junction)),
-                "merge": lambda: merge_road(_params(MergeParams, merge))}
-    names = list(order)
-    ok = bool(names) and len(set(names)) == len(names) and set(names) <= set(builders)
-    check("order", tuple(order), ok, f"distinct names from {tuple(builders)}")
-    pieces: list[Piece] = [builders[name]() for name in names]
-    return compose(pieces, name="urban")
+def concatenated(urban_map: UrbanMap | Mapping | None = None, **keywords) -> ComposedMap:
+    """The pieces of Fig. 8 chained in route order, built from their parameters: `urban_map` (an UrbanMap, or a
+    dict of its keywords: `order`, `roundabout`, `road`, `crossroad`, `merge`) or those keywords directly.
+    `order` None chains all four ("roundabout", "road", "crossroad", "merge"). Raises ConfigError (a ValueError)
+    naming the piece and the parameter, or the pieces that would overlap."""
+    if urban_map is None:
+        urban_map = UrbanMap.from_dict(keywords)
+    elif keywords:
+        raise ConfigError(f"give the map either as urban_map or as keywords, not both ({', '.join(keywords)})")
+    elif not isinstance(urban_map, UrbanMap):
+        check("urban_map", urban_map, isinstance(urban_map, Mapping), "an UrbanMap or a dict of its keywords")
+        urban_map = UrbanMap.from_dict(urban_map)
+    builders = {"roundabout": lambda: roundabout_piece(urban_map.roundabout),
+                "road": lambda: overtaking_road(urban_map.road),
+                "crossroad": lambda: crossroad(urban_map.crossroad),
+                "merge": lambda: merge_road(urban_map.merge)}
+    pieces: list[Piece] = [builders[name]() for name in urban_map.pieces()]
+    try:
+        return compose(pieces, name="urban")
+    except ValueError as error:  # pieces that run over each other: the map's order or sizes
+        hint = " (set the map's lane_width, or the same lane_width on every piece)" if "lane widths" in str(error) \
+            else ""
+        raise ConfigError(f"order={list(urban_map.pieces())}: {error}{hint}") from None
 
 
 def urban_route(**kwargs) -> UrbanRoute:

@@ -5,6 +5,7 @@ allowed; `from_dict` rejects unknown keys, lists the valid ones and suggests the
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -141,3 +142,38 @@ class MergeParams(Config):
         least = (self.lane_width * math.cos(self.merge_angle) + APPROACH_CLEARANCE) / lift
         check_number("slip_radius", self.slip_radius, max(8.0, math.ceil(least * 10) / 10), 200.0)
         check_number("taper_length", self.taper_length, 4.0 * self.lane_width, 500.0)
+
+
+PIECE_NAMES = ("roundabout", "road", "crossroad", "merge")  # the pieces of Fig. 8, in its order
+
+
+@dataclass(frozen=True)
+class UrbanMap(Config):
+    """A study-002 map as data: the pieces in route order and each piece's parameters (pieces left out of
+    `order` are not built; their parameters are still checked). Given to the urban tasks as `map=` (a dict of
+    these keywords, or the path of a YAML or JSON file of them) and to `roads.concatenated`."""
+
+    order: tuple[str, ...] | None = param(None, "pieces in route order, each at most once (None: the task's "
+                                          "pieces; roads.concatenated: all four)", choices=PIECE_NAMES)
+    roundabout: RoundaboutParams = param(RoundaboutParams(), "the roundabout (keywords of RoundaboutParams)")
+    road: OvertakingRoadParams = param(OvertakingRoadParams(), "the two-lane road (keywords of "
+                                       "OvertakingRoadParams)")
+    crossroad: CrossroadParams = param(CrossroadParams(), "the crossroad (keywords of CrossroadParams)")
+    merge: MergeParams = param(MergeParams(), "the merge (keywords of MergeParams)")
+    lane_width: float | None = param(None, "every piece's lane width (pieces meet with equal lanes); None: each "
+                                     "piece's own", "m", ge=LANE_WIDTH_RANGE[0], le=LANE_WIDTH_RANGE[1])
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.lane_width is None:
+            return
+        default = OvertakingRoadParams().lane_width
+        for name in PIECE_NAMES:
+            piece = getattr(self, name)
+            check(f"{name}.lane_width", piece.lane_width, piece.lane_width in (default, self.lane_width),
+                  f"the map's lane_width ({self.lane_width:g} m) or left out when the map sets it")
+            object.__setattr__(self, name, dataclasses.replace(piece, lane_width=self.lane_width))
+
+    def pieces(self, default: tuple[str, ...] = PIECE_NAMES) -> tuple[str, ...]:
+        """`order`, or `default` where it is None."""
+        return default if self.order is None else self.order

@@ -28,7 +28,7 @@ from mjdrive.roads.junctions import roundabout
 from mjdrive.roads.lane import Lane, Marking
 from mjdrive.roads.pieces import STRAIGHT_TOLERANCE, Arm, add_connectors, add_road, connector
 from mjdrive.roads.ports import Piece, Port, ScenarioSpan
-from mjdrive.roads.roadmap import RoadMap
+from mjdrive.roads.roadmap import MAIN_ROAD, MINOR_ROAD, RoadMap
 from mjdrive.roads.urban_params import CrossroadParams, MergeParams, OvertakingRoadParams, RoundaboutParams, check
 
 PRIORITY_MAJOR = 2  # main road, circulating lanes
@@ -206,6 +206,7 @@ def crossroad(params: CrossroadParams | None = None, **kwargs) -> Piece:
         _set_priority(rm, out + inn, PRIORITY_MAJOR if major else PRIORITY_MINOR)
         if not major:
             rm.give_way.extend((i, rm.lanes[i].length) for i in inn)
+        rm.junction_entries.extend((i, MAIN_ROAD if major else MINOR_ROAD) for i in inn)
         arms.append(Arm(name, angle, inn, out))
         end, _ = path.end()
         if name == "approach":

@@ -24,6 +24,7 @@ metrics (`mjdrive.comfort`, sampled at the control rate by the DrivingEnvironmen
 from __future__ import annotations
 
 import collections
+import dataclasses
 import functools
 from dataclasses import dataclass
 
@@ -41,6 +42,7 @@ from mjdrive.roads.conflicts import MERGE
 from mjdrive.roads.ports import ComposedMap
 from mjdrive.roads.route_frame import RouteFrame
 from mjdrive.roads.urban import FOLLOW, UrbanRoute, concatenated, route_offsets, route_through
+from mjdrive.roads.urban_params import UrbanMap
 from mjdrive.tasks import kernels
 from mjdrive.tasks.base import (
     DrivingConfig,
@@ -86,6 +88,9 @@ class UrbanConfig(DrivingConfig):
     warmup: float = param(10.0, "traffic simulated before the episode starts", "s", ge=0.0, le=120.0)
     off_route: float = param(4.0, "distance from the route's centre line that ends the episode", "m",
                              gt=0.0, le=20.0)
+    map: UrbanMap | None = param(None, "the map: the pieces' order and parameters ({order: [...], roundabout: "
+                                 "{...}, road: {...}, crossroad: {...}, merge: {...}}), or the path of a YAML or "
+                                 "JSON file of them; None: the task's pieces at their defaults")
     road_users: dict[str, int] | None = param(None, "road users by kind, overriding the map's default",
                                               ge=0, le=100, keys=tuple(k for k in KIND_NAMES if k != "pedestrian"))
     traffic_config: TrafficConfig = param(URBAN_CONFIG, "traffic behaviour constants (a dict of its keywords)")
@@ -431,9 +436,14 @@ class UrbanTask(DrivingTask):
 
 
 @functools.lru_cache(maxsize=8)
-def _route(name: str) -> UrbanRoute:
-    """The map and route of a task (built once per process; maps are immutable data)."""
-    return route_through(concatenated(order=PIECES[name]))
+def _route(name: str, urban_map: UrbanMap | None) -> UrbanRoute:
+    """The map and route of a task (built once per process and map; maps are immutable data)."""
+    urban_map = urban_map or UrbanMap()
+    pieces = urban_map.pieces(PIECES[name])
+    if name != "concatenated" and PIECES[name][0] not in pieces:
+        raise ConfigError(f"map={{'order': {list(pieces)}}}: urban/{name} needs the {PIECES[name][0]!r} piece in "
+                          "the order")
+    return route_through(concatenated(dataclasses.replace(urban_map, order=pieces)))
 
 
 def _make(name: str, config: UrbanConfig, environment_kwargs) -> DrivingEnvironment:
@@ -443,7 +453,7 @@ def _make(name: str, config: UrbanConfig, environment_kwargs) -> DrivingEnvironm
     if config.decisions and abs(env_kwargs["control_timestep"] - period) > 1e-9:
         raise ConfigError(f"{where}: with decisions the env step is the decision period ({period:g} s); set "
                           "decision_period instead of control_timestep")
-    route = _route(name)
+    route = _route(name, config.map)
     composed: ComposedMap = route.composed
     kinds = counts_to_kinds(default_counts(composed) if config.road_users is None else config.road_users)
     model = world.build(route.road_map, vehicle=config.vehicle, traffic=slots(kinds), timestep=config.physics_dt)

@@ -118,7 +118,7 @@ def can_stop(v: float, to_line: float) -> bool:
 
 
 @inline
-def zone_state(agents, vehicles, approaches, c):
+def zone_state(agents, vehicles, approaches, c, control):
     """Every agent (A,) (`Agents`: the vehicles, then the ego, which waits as they do (`Traffic.ego_waited`) but is
     never courteous and never counted on to stop for a claim) at every approach (R,), for the agents on the
     approach's other lane (on_lane[r, :n_on[r]]; the other entries are never read): inside the zone (or committed
@@ -126,7 +126,8 @@ def zone_state(agents, vehicles, approaches, c):
     patience, claiming the zone itself, physically in the zone, its time to its give-way line [s], waiting before
     the zone, its distance to the merge point [m] and whether that is near (A, R); on_lane (R, A), n_on (R,); per
     agent (A,): how long it has waited [s], whether it opens gaps (courteous), the headway [m] it needs behind a
-    merging vehicle; the vehicles changing lane (rows)."""
+    merging vehicle; the vehicles changing lane (rows). control (A,): [m] to the junction-control line each agent must
+    stop at (inf: none); an agent whose line comes before a zone is held there."""
     ap = approaches
     s_a, v_a, len_a, offset_a = agents.s, agents.v, agents.length, agents.offset
     n_a, n_r, nv = len(s_a), len(ap.lane), len(vehicles.v)
@@ -180,7 +181,7 @@ def zone_state(agents, vehicles, approaches, c):
             # at the line for TURN_WAIT already: then it is its turn (no stream of yielders starves it).
             before_line = v_a[a] < HELD_SPEED and f_o <= other_stop + COMMITTED
             at_line = other_stop - f_o < AT_LINE
-            held[a, r] = before_line and not (at_line and waited[a] >= TURN_WAIT)
+            held[a, r] = (before_line and not (at_line and waited[a] >= TURN_WAIT)) or control[a] < ap.o_in[r] - f_o
             to_own = other_stop - f_o
             if not np.isfinite(to_own):
                 to_own = -np.inf
@@ -208,7 +209,7 @@ def zone_state(agents, vehicles, approaches, c):
 
 
 @helper
-def zone_stops(followers, agents, vehicles, approaches, slot_pos, c):
+def zone_stops(followers, agents, vehicles, approaches, slot_pos, c, control):
     """Every follower (`Followers`, rows of `agents`) at every approach on its path: its stop line [m] (inf: none), its
     virtual leader's gap [m] and speed [m/s] in a merge, as pairs in follower then approach order (those of follower
     f: start[f] to start[f + 1]); and per follower, the distance [m] to its nearest give-way line where it gives way
@@ -219,9 +220,10 @@ def zone_stops(followers, agents, vehicles, approaches, slot_pos, c):
     while an agent from the other lane occupies it. Merges (a zipper over the distance to the merge point): agents
     of the other lane nearer the merge point are virtual leaders of the yielding side, and of the priority side once
     committed (or, for a courteous vehicle, within `courtesy_range`); a yielding vehicle waits at its give-way line
-    while a priority agent behind it in that order would come closer than its headway."""
+    while a priority agent behind it in that order would come closer than its headway. control (A,): [m] to each
+    agent's junction-control line (`zone_state`)."""
     (inside, ttz, held, stoppable_a, claiming, in_zone, t_line, waiting, d_merge, near, on_lane, n_on, waited_a,
-     courteous_a, needed, changing) = zone_state(agents, vehicles, approaches, c)
+     courteous_a, needed, changing) = zone_state(agents, vehicles, approaches, c, control)
     ap = approaches
     ap_lane, ap_s_in, ap_s_out, ap_stop, ap_point = ap.lane, ap.s_in, ap.s_out, ap.stop, ap.point
     ap_timed, ap_yields, ap_tie, ap_merge, ap_courtesy = ap.timed, ap.yields, ap.tie, ap.merge, ap.courtesy
@@ -328,10 +330,11 @@ def zone_stops(followers, agents, vehicles, approaches, slot_pos, c):
 
 
 @jit
-def ego_give_way(followers, agents, vehicles, approaches, slot_pos, c):
+def ego_give_way(followers, agents, vehicles, approaches, slot_pos, c, control):
     """What `zone_stops` asks of one follower (the ego, `Traffic.give_way`): the nearest stop line [m] before a zone
     (inf: none), and in a merge its nearest virtual leader's gap [m] (inf: none) and speed [m/s]."""
-    start, line, leader_gaps, leader_speeds, _ = zone_stops(followers, agents, vehicles, approaches, slot_pos, c)
+    start, line, leader_gaps, leader_speeds, _ = zone_stops(followers, agents, vehicles, approaches, slot_pos, c,
+                                                            control)
     stop, gap, speed = np.inf, np.inf, 0.0
     for k in range(start[0], start[1]):
         stop = minimum(stop, line[k])

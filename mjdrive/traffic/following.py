@@ -24,28 +24,30 @@ INF = np.inf
 LINE_DECEL = 1.5  # [m/s^2] followers approach yield and give-way lines slowly enough to stop there at this braking
 MIN_DESIRED_SPEED = 0.1  # [m/s] IDM's free-road term divides by the desired speed, at least this
 MIN_GAP_DIVISOR = 0.05  # [m] ... and its interaction term by the gap, at least this
+ONCOMING_COS = -0.5  # a vehicle heading more than 120 degrees away from a follower's heading comes towards it
 
 
 def accelerations(followers: Followers, agents: Agents, vehicles, pedestrians, now, half_size: np.ndarray,
-                  ego: np.ndarray, tables, c, accept_gap: float) -> tuple[np.ndarray, np.ndarray]:
+                  ego: np.ndarray, tables, c, accept_gap: float, control: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """IDM accelerations [m/s^2] of `followers` (rows of `agents`) and their smallest gaps [m] (inf where none), capped
-    so that each can still stop within its room whatever the obstacle does (`gap_table`, `idm`)."""
+    so that each can still stop within its room whatever the obstacle does (`gap_table`, `idm`). control (A,): [m] to
+    the junction-control line each agent must stop at (inf: none; `junction_control.stop_gaps`)."""
     lead_gap, interaction, room, v0, ratio = gap_table(followers, agents, vehicles, pedestrians, now, half_size, ego,
-                                                       tables, c, accept_gap)
+                                                       tables, c, accept_gap, control)
     ratio4 = ratio**4  # numpy's power (the numbers every trajectory was recorded with; not libm's pow)
     return idm(followers.a_max, followers.v, v0, ratio4, interaction, room, c.decision_period, c.max_decel), lead_gap
 
 
 @jit
-def gap_table(followers, agents, vehicles, pedestrians, now, half_size, ego, tables, c, accept_gap):
+def gap_table(followers, agents, vehicles, pedestrians, now, half_size, ego, tables, c, accept_gap, control):
     """Every follower's gap table reduced (`gap_summary`: the smallest gap [m], the largest interaction term, the least
     room [m]) and its desired speed [m/s] with its speed's ratio to it (`desired_speed`), among the corridor's
     obstacles now (`obstacles_now`; ego: its box, or empty) and the agents on the lane graph. `tables`: the traffic's
-    `MapTables`; c: its `Constants`; accept_gap [s]: at roundabout merges."""
+    `MapTables`; c: its `Constants`; accept_gap [s]: at roundabout merges; control (A,) [m]: junction-control lines."""
     obstacles = obstacles_now(vehicles, pedestrians.slot, now, half_size, ego)
     vcurve, kappa = curve_speed(tables.polylines, np.maximum(followers.path[:, 0], 0), followers.s)
     lead_gap, interaction, room, to_give_way = gap_summary(followers, agents, obstacles, vehicles, pedestrians,
-                                                           now.pos, kappa, tables, c, accept_gap)
+                                                           now.pos, kappa, tables, c, accept_gap, control)
     v0, ratio = desired_speed(followers, vcurve, to_give_way, tables.lanes, tables.merges, c.yield_speed)
     return lead_gap, interaction, room, v0, ratio
 
@@ -98,7 +100,7 @@ def _fold(state, gap: float, lead: float, s0: float, v: float, vT: float, den: f
 
 
 @helper
-def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, kappa, tables, c, accept_gap):
+def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, kappa, tables, c, accept_gap, control):
     """For every follower: the smallest gap [m] of its gap table (inf if none), the largest IDM interaction term
     (s*/gap)^2, the least stopping room [m] (gap - s0 + v_lead^2 / 2 max_decel; inf if none) and the distance [m]
     to its nearest give-way line still ahead (inf if none). kappa: the curvature [1/m] at each follower (the
@@ -109,6 +111,7 @@ def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, k
     lane_a, s_a, v_a, len_a = agents.path[:, 0], agents.s, agents.v, agents.length
     o_xy, o_yaw, o_speed, o_hl, o_hw, o_row = obstacles
     n_f, n_a, n_o, n_k = len(s), len(s_a), len(o_row), len(crossings.lane)
+    n_vehicles = len(vehicles.active)  # obstacle rows below this are the traffic's vehicles
     lead_gap = np.full(n_f, INF)
     interaction = np.zeros(n_f)
     room = np.full(n_f, INF)
@@ -122,7 +125,8 @@ def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, k
         cos_o[o], sin_o[o] = math.cos(o_yaw[o]), math.sin(o_yaw[o])
     blocked = occupied_crossings(pedestrians, crossings, c.crosswalk_margin + BAND_MARGIN)
     conflict, committed = merge_state(agents, vehicles, merges, slot_pos, accept_gap, c)
-    z_start, z_line, z_gap, z_speed, to_give_way = zone_stops(f_, agents, vehicles, tables.approaches, slot_pos, c)
+    z_start, z_line, z_gap, z_speed, to_give_way = zone_stops(f_, agents, vehicles, tables.approaches, slot_pos, c,
+                                                              control)
 
     for f in range(n_f):
         row, offset_f = f_.row[f], offset[f]
@@ -148,7 +152,11 @@ def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, k
             cos_d = cos_o[o] * cos_f[f] + sin_o[o] * sin_f[f]  # of the obstacle's yaw relative to the follower
             cd, sd = abs(cos_d), abs(sin_o[o] * cos_f[f] - cos_o[o] * sin_f[f])
             hl, hw = o_hl[o], o_hw[o]
-            inside = dx > 0 and dx < c.corridor_range and o_row[o] != row
+            # Under urban rules an oncoming vehicle of the traffic keeps to its own lane: the lanes that cross or merge
+            # are conflict zones (5.), so the corridor does not stop for it (two oncoming turners would wait for each
+            # other). The roundabouts of study 000 keep their rules.
+            oncoming = tables.urban and cos_d < ONCOMING_COS and o_row[o] >= 0 and o_row[o] < n_vehicles
+            inside = dx > 0 and dx < c.corridor_range and o_row[o] != row and not oncoming
             inside = inside and abs(dy) < (width[f] / 2 + c.corridor_margin) + sd * hl + cd * hw
             g = dx - length[f] / 2 - cd * hl - sd * hw if inside else INF
             state = _fold(state, g, o_speed[o] * cos_d, c.min_gap, vf, vT, den[f], two_b)
@@ -186,6 +194,10 @@ def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, k
             to_end = offset_f[lane_last] + lanes.length[lane_last] - front
             state = _fold(state, to_end if ends else INF, 0.0, c.stop_gap, vf, vT, den[f], two_b)
 
+        # 6. Junction control: red lights, amber, stop signs not yet stopped at (a line, like a give-way line).
+        state = _fold(state, control[row], 0.0, c.stop_gap, vf, vT, den[f], two_b)
+        to_give_way[f] = minimum(to_give_way[f], control[row])
+
         lead_gap[f], interaction[f], room[f] = state
     return lead_gap, interaction, room, to_give_way
 
@@ -212,6 +224,17 @@ def path_leader(agents, row):
         if g < best:
             best, speed = g, agents.v[a]
     return best, speed
+
+
+@jit
+def queued_rows(agents, rows, gap, speed):
+    """(len(rows),) whether each agent row stands within `gap` [m] behind a leader on its path slower than
+    `speed` [m/s] (a queue, not a stop of its own)."""
+    out = np.zeros(rows, dtype=np.bool_)
+    for row in range(rows):
+        g, v = path_leader(agents, row)
+        out[row] = g < gap and v < speed
+    return out
 
 
 @inline

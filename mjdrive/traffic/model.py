@@ -49,9 +49,10 @@ import numpy as np
 from mjdrive.compiled import announce_compilation
 from mjdrive.roads import RoadMap
 from mjdrive.roads.conflicts import ConflictZones
+from mjdrive.traffic import junction_control as jc
 from mjdrive.traffic import motion, state
 from mjdrive.traffic.conflicts import ApproachTable, ego_give_way
-from mjdrive.traffic.following import accelerations, path_leader
+from mjdrive.traffic.following import accelerations, path_leader, queued_rows
 from mjdrive.traffic.intentions import LANE_CHANGE, LEFT, MERGE, RIGHT, SCENARIOS, YIELD, LaneRoles, Routes, fill_paths
 from mjdrive.traffic.lane_changes import lane_changes
 from mjdrive.traffic.lanes import Crossings, LaneTables, Merges, Polylines, TrafficMap
@@ -67,6 +68,9 @@ from mjdrive.traffic.spawning import Spawner, SpawnPoints
 from mjdrive.traffic.state import Agents, Followers, PlanCursor, Poses, VehicleKinds
 
 EGO_DECEL = 3.0  # [m/s^2] the ego's comfortable deceleration, as pedestrians judge whether it could stop
+QUEUE_GAP = 8.0  # [m] bumper to bumper behind a slow leader: queued (`Traffic.queued`)
+QUEUE_SPEED = 0.5  # [m/s] ... a leader slower than this
+STOPPED_SPEED = 0.1  # [m/s] slower than this: stopped (`Traffic.stopped`)
 _NO_PLAN = Poses(np.zeros((0, 0, 3)), np.zeros((0, 0, 4)), np.zeros((0, 0)), np.zeros((0, 0)))
 
 class GiveWay(NamedTuple):
@@ -140,7 +144,9 @@ class Traffic:
         self._hidden_vehicles = self._hidden[self.vehicle_slots]  # [m] (NV, 3)
         self.mocap_ids: np.ndarray | None = None  # the slots' rows in data.mocap_*
         self.cpu_time = 0.0  # [s] wall time spent in `advance` (for benchmarks)
-        self.stats = {"spawned": 0, "despawned": 0, "lane_changes": 0}
+        self.stats = {"spawned": 0, "despawned": 0, "lane_changes": 0, "red_light_violations": 0,
+                      "stop_sign_violations": 0}
+        self.junctions = jc.Junctions.of(m.road_map)  # junction entries; give-way until `set_junction_control`
         self.generation = np.zeros(self.n, dtype=np.int64)  # per slot: +1 each time a road user (re)enters
         self.ego: EgoState | None = None
         self.rng = np.random.default_rng(0)
@@ -180,6 +186,24 @@ class Traffic:
         quat = np.zeros((self.n, 4))
         quat[:, 0] = 1.0  # yaw 0: cos 0 = 1, sin 0 = 0
         self.now = Poses(self._hidden.copy(), quat, np.zeros(self.n), np.zeros(self.n))
+        self.signal_time = 0.0  # [s] the junction signals' clock (runs through the warmup)
+        self.entry_state = jc.entry_states(self.junctions, 0.0)  # (E,) what each junction entry shows
+        self.halted = np.full(self.nv, -1, dtype=np.int64)  # the stop-sign entry each vehicle has stopped at
+        self.ego_halted = -1  # ... and the ego
+
+    def set_junction_control(self, control: str, timing: jc.SignalTiming | None = None, offset: float = 0.0) -> None:
+        """The control of the map's junctions from now on: "give_way", "stop" (stop signs on the minor road) or
+        "lights" (`timing`, starting `offset` [s] into its cycle)."""
+        if control not in jc.CONTROLS:
+            raise ValueError(f"junction control {control!r}: must be one of {', '.join(jc.CONTROLS)}")
+        self.junctions = self.junctions._replace(control=jc.CONTROLS.index(control),
+                                                 timing=timing or jc.SignalTiming(), offset=float(offset))
+        self.entry_state = jc.entry_states(self.junctions, self.signal_time)
+
+    def junction_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """The junction entries' lane ids (E,) and what each shows now (`junction_control.GREEN`, AMBER, RED or
+        STOP_SIGN; GREEN under give-way)."""
+        return self.junctions.lane.copy(), self.entry_state.copy()
 
     # --- episodes --------------------------------------------------------------------------------------
     def reset(self, rng: np.random.Generator, ego: EgoState | None = None, keep_clear: float = 12.0,
@@ -240,6 +264,7 @@ class Traffic:
         v.v0[row] = self.map.speed_limit[lanes[0]] if desired_speed is None else desired_speed
         v.d_pref[row], v.lc_shift[row], v.lc_dist[row] = lateral, 0.0, 1e9
         v.accel[row] = 0.0
+        self.halted[row] = -1
         self._restart()
 
     def place_pedestrian(self, row: int, u: float, direction: float, walking: bool = True,
@@ -329,7 +354,12 @@ class Traffic:
         """New accelerations, lane changes, spawns and pedestrian starts; then the plan of poses."""
         v, cfg = self.vehicles, self.config
         period = cfg.decision_period if self.urban else 0.0  # urban rules: waiting times count
+        lane_before, active_before = v.path[:, 0].copy(), v.active.copy()
         self.stats["despawned"] += motion.move_on(v, self.routes, self.map.length, self.rng, period)
+        if self.junctions.active:
+            self._count_violations(lane_before, active_before)
+            self.entry_state = jc.entry_states(self.junctions, self.signal_time)
+        self.signal_time += cfg.decision_period
         ego = self.ego
         on_lanes = ego is not None and ego.path is not None
         self.ego_waited = motion.waited_after(self.ego_waited, on_lanes, ego.speed if on_lanes else 0.0, period) \
@@ -349,6 +379,8 @@ class Traffic:
             reach = -1.0 if ego is None else EGO_REACH + EGO_REACH_PER_SPEED * max(ego.speed, 0.0)
             start_crossing(self.pedestrians, agents, self._b_agents, self.map.crossings,
                            0.0 if ego is None else ego.x, 0.0 if ego is None else ego.y, reach)
+        if self.junctions.active:
+            self._update_halted(agents)
         followers = Followers(np.arange(self.nv), agents.path[: self.nv], agents.offset[: self.nv], v.s, v.v, v.v0,
                               v.length, *self.vehicle_kinds, self.now.pos[v.slot, :2],
                               self.now.yaw[v.slot], v.intention[:, MERGE] == YIELD)
@@ -369,7 +401,35 @@ class Traffic:
         ego_box = np.zeros(0) if ego is None else np.array(
             [ego.x, ego.y, ego.yaw, max(ego.speed, 0.0), ego.length / 2, ego.width / 2], dtype=float)
         return accelerations(followers, agents, self.vehicles, self.pedestrians, self.now, self.half_size, ego_box,
-                             self.tables, self.constants, accept_gap)
+                             self.tables, self.constants, accept_gap, self._control_gaps(agents))
+
+    def _control_gaps(self, agents: Agents) -> np.ndarray:
+        """(A,) [m] to the junction-control line each agent (the vehicles, the ego) must stop at now (inf: none)."""
+        if not self.junctions.active:
+            return np.full(len(agents.s), np.inf)
+        gaps = jc.line_gaps(self.junctions, agents.offset, agents.s, agents.length)
+        return jc.stop_gaps(self.junctions, self.entry_state, gaps, agents.v, np.append(self.halted, self.ego_halted))
+
+    def _update_halted(self, agents: Agents) -> None:
+        """Who has come to rest at a stop sign's line (the vehicles and the ego, at decisions)."""
+        v = self.vehicles
+        gaps = jc.line_gaps(self.junctions, agents.offset, agents.s, agents.length)
+        lanes = agents.path[:, 0]
+        halted = jc.halted_lanes(self.junctions, self.entry_state, lanes, gaps, agents.v,
+                                 np.append(self.halted, self.ego_halted))
+        self.halted = np.where(v.active, halted[: self.nv], -1)
+        self.ego_halted = int(halted[self.nv]) if self.ego is not None and self.ego.path is not None else -1
+
+    def _count_violations(self, lane_before: np.ndarray, active_before: np.ndarray) -> None:
+        """Vehicles that left a junction entry in the last decision period while it showed red, or a stop sign they
+        had not come to rest at (`stats`)."""
+        v, junctions = self.vehicles, self.junctions
+        left = active_before & v.active & (v.path[:, 0] != lane_before)
+        at_entry = (lane_before[:, None] == junctions.lane[None, :]) & left[:, None]  # (NV, E)
+        state = self.entry_state[None, :]
+        self.stats["red_light_violations"] += int((at_entry & (state == jc.RED)).any(axis=1).sum())
+        ran_sign = at_entry & (state == jc.STOP_SIGN) & (self.halted[:, None] != junctions.lane[None, :])
+        self.stats["stop_sign_violations"] += int(ran_sign.any(axis=1).sum())
 
     # --- poses -------------------------------------------------------------------------------------------
     def _make_plan(self, start: np.ndarray) -> Poses:
@@ -449,6 +509,16 @@ class Traffic:
                                        self.map.length, self.map.n_lanes)
         return path_leader(agents, self.nv)
 
+    def queued(self, gap: float = QUEUE_GAP, speed: float = QUEUE_SPEED) -> np.ndarray:
+        """(NV,) vehicles in a queue: within `gap` [m] (bumper to bumper) behind a leader on their path that moves
+        slower than `speed` [m/s] (the ego counts as a leader). A stopped vehicle that is not queued waits on its
+        own: at a give-way or yield line, for a pedestrian, or stuck."""
+        return queued_rows(self.agents(), self.nv, float(gap), float(speed)) & self.vehicles.active
+
+    def stopped(self, speed: float = STOPPED_SPEED) -> np.ndarray:
+        """(NV,) active vehicles slower than `speed` [m/s] now."""
+        return self.vehicles.active & (self.now.speed[self.vehicle_slots] < speed)
+
     def give_way(self, ego: EgoState) -> GiveWay:
         """What the urban rules (`conflicts.zone_stops`, the rules every vehicle obeys) ask of the ego now: the
         give-way line it must wait at, and the vehicle it must merge behind. Needs ego.path and urban rules (a map
@@ -458,7 +528,10 @@ class Traffic:
         self.ego = ego
         agents = self.agents()
         followers = self._ego_followers(ego, agents, 8.0, 2.0, 3.0, 1.5)
-        return GiveWay(*ego_give_way(followers, agents, self.vehicles, self.approaches, self.now.pos, self.constants))
+        control = self._control_gaps(agents)
+        stop, gap, speed = ego_give_way(followers, agents, self.vehicles, self.approaches, self.now.pos, self.constants,
+                                        control)
+        return GiveWay(min(stop, float(control[self.nv])), gap, speed)
 
     def _ego_followers(self, ego: EgoState, agents: Agents, desired_speed: float, accel: float, decel: float,
                        headway: float) -> Followers:

@@ -8,12 +8,14 @@ that overtaking pays; faster ones in its left lane).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 
 import numpy as np
 
 from mjdrive.roads.conflicts import conflict_zones
 from mjdrive.roads.ports import ComposedMap
+from mjdrive.roads.urban import concatenated
 from mjdrive.traffic.intentions import KEEP
 from mjdrive.traffic.model import Traffic
 from mjdrive.traffic.params import TrafficConfig, counts_to_kinds
@@ -25,7 +27,8 @@ SLOW_SPEED = (4.0, 6.0)  # [m/s] vehicles spawned in the right lane of the two-l
 FAST_SPEED = (11.0, 15.0)  # [m/s] ... and in its left lane
 SPAWN_S = 8.0  # [m] along the lane
 
-# Road users of each map at its default traffic: keys are the composed map's piece names joined by "+".
+# Road users of each registered map at its default parameters: keys are the piece names joined by "+". A single
+# piece's row is also its density (road users per metre of its lanes) on any map that holds it.
 DEFAULT_COUNTS: dict[str, dict[str, int]] = {
     "roundabout": {"car": 16, "motorcycle": 2},
     "overtaking_road": {"car": 10, "motorcycle": 2},
@@ -33,6 +36,9 @@ DEFAULT_COUNTS: dict[str, dict[str, int]] = {
     "merge_road": {"car": 10, "motorcycle": 2},
     "roundabout+overtaking_road+crossroad+merge_road": {"car": 26, "motorcycle": 6},
 }
+CHAIN_SHARE = 0.6  # a chain of pieces carries this share of its pieces' densities (the study's route: 26 of 44 cars)
+PIECE_PARAMS = {"roundabout": "roundabout", "overtaking_road": "road", "crossroad": "crossroad",
+                "merge_road": "merge"}  # piece name -> its UrbanMap keyword
 
 
 def map_key(composed: ComposedMap) -> str:
@@ -40,13 +46,39 @@ def map_key(composed: ComposedMap) -> str:
     return "+".join(piece.name for piece in composed.pieces)
 
 
+@functools.cache
+def _default_lane_length(piece: str) -> float:
+    """Total lane length [m] of a piece at its default parameters."""
+    return _lane_lengths(concatenated(order=(PIECE_PARAMS[piece],)))[piece]
+
+
+def _lane_lengths(composed: ComposedMap) -> dict[str, float]:
+    """Total lane length [m] of each piece of `composed`, by piece name."""
+    out = {piece.name: 0.0 for piece in composed.pieces}
+    for lane in composed.road_map.lanes:
+        prefix = lane.name.partition("/")[0]
+        out[prefix] = out.get(prefix, 0.0) + lane.length
+    return out
+
+
 def default_counts(composed: ComposedMap) -> dict[str, int]:
-    """Road users by kind at the map's default traffic (two per 100 m of lane for an unknown chain)."""
+    """Road users by kind at the map's default traffic: the registered maps' rows of DEFAULT_COUNTS; any other
+    map (pieces reordered, resized, a chain the table lacks) its pieces' densities times their lane lengths,
+    times CHAIN_SHARE for a chain (at least 2 cars)."""
+    lengths = _lane_lengths(composed)
+    names = [piece.name for piece in composed.pieces]
+    if not set(names) <= set(PIECE_PARAMS):  # pieces built elsewhere: 1 car per 60 m of lane
+        return {"car": max(2, int(sum(lengths.values()) / 60.0))}
+    scale = {name: lengths[name] / _default_lane_length(name) for name in names}
     key = map_key(composed)
-    if key in DEFAULT_COUNTS:
+    if key in DEFAULT_COUNTS and all(abs(x - 1.0) < 1e-3 for x in scale.values()):
         return dict(DEFAULT_COUNTS[key])
-    lane_length = sum(lane.length for lane in composed.road_map.lanes)
-    return {"car": max(2, int(lane_length / 50.0))}
+    share = 1.0 if len(names) == 1 else CHAIN_SHARE
+    kinds = sorted({kind for name in names for kind in DEFAULT_COUNTS[name]})
+    counts = {kind: int(round(share * sum(DEFAULT_COUNTS[name].get(kind, 0) * scale[name] for name in names)))
+              for kind in kinds}
+    counts["car"] = max(2, counts.get("car", 0))
+    return counts
 
 
 def spawn_points(composed: ComposedMap) -> SpawnPoints:
