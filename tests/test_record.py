@@ -418,6 +418,7 @@ def test_layout_file_refers_to_logged_topics():
     assert {"3D!mjdrive", "Image!mjdrive", "Plot!speed", "Plot!jerk", "Plot!reward"} <= set(layout["configById"])
     topics = PER_STEP | PER_ACTION | ONCE | {"/scene/road_users", "/camera/front", "/camera/front/calibration"}
     topics |= {"/operative", "/operative/plan", "/scene/plan"}  # an urban task's with decisions
+    topics |= {"/junction", "/scene/signals"}  # an urban task's with stop signs or lights
     assert set(layout["configById"]["3D!mjdrive"]["topics"]) <= topics
     panels = [key for key in layout["configById"] if key.startswith(("Plot!", "StateTransitions!"))]
     assert {"Plot!operative", "StateTransitions!decision"} <= set(panels)

@@ -98,6 +98,25 @@ def test_the_operative_channels_of_a_decision_episode_match_their_schemas(task, 
     assert isinstance(action["decision"], int) and isinstance(action["name"], str)
 
 
+@pytest.mark.parametrize("control", ["lights", "stop"])
+def test_the_junction_channels_match_their_schemas(control, tmp_path, drive_episode):
+    """Junction control adds /junction (what each entry shows) and its lamps (/scene/signals), every step."""
+    env = RecordEpisodes(make_env("urban", "crossroad", time_limit=20.0, junction_control=control), tmp_path)
+    drive_episode(env, make_policy("autopilot", env, 0), seed=0)
+    env.close()
+    (path,) = sorted(tmp_path.glob("*.mcap"))
+    counts, errors = schema_errors(path)
+    assert not errors, "\n".join(errors[:20])
+    episode = read_episode(path)
+    assert counts["/junction"] == counts["/ego/state"] and "/scene/signals" in episode.messages
+    states = {entry["state"] for _, payload in episode.messages["/junction"]
+              for entry in json.loads(payload)["entries"]}
+    if control == "stop":
+        assert states == {"stop", "green"}  # the minor road's signs, the main road free
+    else:
+        assert {"green", "red"} <= states <= {"green", "amber", "red"}  # one road is always red
+
+
 def test_the_schemas_are_strict_a_key_not_declared_or_a_wrong_type_fails(tmp_path):
     """The check above can fail: an undeclared key, a missing one, a null where none is allowed are errors."""
     env = RecordEpisodes(gym.make("mjdrive/Waypoints-Straight-v0", time_limit=0.5), tmp_path)

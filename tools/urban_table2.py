@@ -93,7 +93,7 @@ def episode(spec: tuple[str, str, int, str], index: int) -> dict:
         if terminated or truncated:
             break
     end = ("success" if info["success"] else "collision" if info["collision"] else
-           "off_route" if info["off_route"] else "time_limit")
+           info["violation"] if info.get("violation") else "off_route" if info["off_route"] else "time_limit")
     task = env.unwrapped.task
     raw_p95, raw_max = task.comfort.unfiltered_jerk(task.control_dt)  # the same samples, finite differences
     return {"seed": seed + index, "end": end, "time": info["elapsed_time"], "speed": info["average_speed"],
@@ -123,7 +123,7 @@ def run(task: str, policy: str, episodes: int, seed: int, workers: int = 0, ray:
 
 
 DRIVER_NAMES = {"rules": "rules + operative level"}  # else the policy's name
-ENDS = ("success", "collision", "off_route", "time_limit")
+ENDS = ("success", "collision", "red_light", "stop_sign", "off_route", "time_limit")
 SHOWN = 8  # failed episodes named per driver
 
 

@@ -34,11 +34,13 @@ MAPS = {"roundabout": ("roundabout",), "lane_change": ("road",), "crossroad": ("
         "merge": ("merge",), "concatenated": ("roundabout", "road", "crossroad", "merge")}
 
 
-def run(name: str | UrbanMap, seed: int, minutes: float) -> dict:
-    """One map (a registered map's name or an UrbanMap), one seed: overlap substeps, stops, zone throughput,
-    cost."""
+def run(name: str | UrbanMap, seed: int, minutes: float, control: str = "give_way") -> dict:
+    """One map (a registered map's name or an UrbanMap), one seed, its junctions under `control`: overlap substeps,
+    stops, zone throughput, vehicles per minute leaving each lane, cost, the traffic's stats (violations among
+    them)."""
     composed = concatenated(order=MAPS[name]) if isinstance(name, str) else concatenated(name)
     traffic = urban_traffic(composed)
+    traffic.set_junction_control(control, offset=float(seed))
     traffic.reset(np.random.default_rng(seed))
     dt = traffic.config.substep
     zones = traffic.zones
@@ -66,7 +68,8 @@ def run(name: str | UrbanMap, seed: int, minutes: float) -> dict:
         worst_any, worst_free = max(worst_any, stopped.max()), max(worst_free, excused_free.max())
     throughput = (passes[zones.lane_a] + passes[zones.lane_b]) / minutes  # (Z,) vehicles per minute
     return {"overlaps": overlap_substeps, "stop_free": worst_free, "stop_any": worst_any,
-            "throughput": throughput, "cost": traffic.cpu_time / (minutes * 60.0), "stats": dict(traffic.stats),
+            "throughput": throughput, "lane_throughput": passes / minutes,
+            "cost": traffic.cpu_time / (minutes * 60.0), "stats": dict(traffic.stats),
             "zones": zones, "road_map": composed.road_map, "counts": default_counts(composed)}
 
 

@@ -31,6 +31,8 @@ Topics (log times: the episode's wall-clock start + simulated time, so plots sta
 | /operative/plan | JSON mjdrive.OperativePlan | `decisions`: every step: the MPC's planned s, v, a |
 | /scene/plan | foxglove.SceneUpdate | `decisions`: every step: the path tracked ahead, the stop point |
 | /decision | JSON mjdrive.Decision | when the policy says who decided (`decided`, e.g. the hybrid agent under `eval`) |
+| /junction | JSON mjdrive.JunctionControl | urban stop signs or lights: what each junction entry shows, every step |
+| /scene/signals | foxglove.SceneUpdate | ... and a lamp per entry, coloured by it, in the 3D scene |
 
 /tf, /ego/state, /physics and /scene/road_users also carry the state right after reset (step 0), so they hold steps
 + 1 messages; /action and /reward hold one per step (with `decisions`, /action holds the decision's index and name,
@@ -355,6 +357,15 @@ _DECISION = _json_schema("mjdrive.Decision", {
     "observation": {"type": "object", "description": "the observation the policy decided on, by entry (arrays as "
                     "nested lists)", "additionalProperties": {"type": "array"}},
 }, "Who decided each step's action and on what (the hybrid agent's scenario selector), at the action's time.")
+_JUNCTION = _json_schema("mjdrive.JunctionControl", {
+    "t": _number("s", "simulated time"),
+    "control": {"type": "string", "description": "the junctions' control this episode: give_way, stop or lights"},
+    "entries": {"type": "array", "description": "every junction entry: its lane, its group (main or minor road) and "
+                "what it shows (green, amber, red or stop)",
+                "items": {"type": "object", "properties": {"lane": {"type": "string"}, "group": {"type": "string"},
+                                                           "state": {"type": "string"}},
+                          "required": ["lane", "group", "state"], "additionalProperties": False}},
+}, "Urban tasks with junction control (stop signs, traffic lights): what every entry shows, every step.")
 PLAN_RGBA = (0.2, 0.9, 0.4, 0.9)  # the lateral path the operative level tracks, in the 3D scene
 STOP_RGBA = (0.95, 0.2, 0.2, 1.0)  # the MPC's stop point
 
@@ -430,6 +441,7 @@ class EpisodeRecorder:
                                                profile="", compression_threads=0)
         self._sensor_channels: _SensorChannels | None = None
         self._operative_channels: _OperativeChannels | None = None
+        self._junction_channels: tuple | None = None  # /junction, /scene/signals (urban junction control)
         self._comfort = ComfortMeter()  # the episode's comfort samples, as the task's (`task.comfort_sample`)
         self._control_dt: float | None = None  # [s] the task's control period (`task.control_dt`)
         self.server = None  # Foxglove WebSocket server streaming this recorder's channels (options.live_port)
@@ -703,6 +715,18 @@ class EpisodeRecorder:
         ch.scene.log(fm.SceneUpdate(entities=[scene.plan_entity(path, stop_line, PLAN_RGBA, STOP_RGBA,
                                                                 _timestamp(ns))]), log_time=ns)
 
+    def _log_junction(self, signals: dict, t: float, ns: int) -> None:
+        """What every junction entry shows (/junction) and its lamp in the 3D scene (/scene/signals)."""
+        if self._junction_channels is None:
+            self._junction_channels = (
+                foxglove.Channel("/junction", schema=_JUNCTION, message_encoding="json", context=self._context),
+                foxglove.channels.SceneUpdateChannel("/scene/signals", context=self._context))
+        table, lamps = self._junction_channels
+        entries = signals["entries"]
+        table.base.log(json.dumps({"t": float(t), "control": signals["control"], "entries": entries}).encode(), ns)
+        entity = scene.signals_entity(signals["xy"], [e["state"] for e in entries], _timestamp(ns))
+        lamps.log(fm.SceneUpdate(entities=[entity]), log_time=ns)
+
     def _log_sensors(self, sensors: dict[str, np.ndarray], ns: int) -> None:
         if self._sensor_channels is None:
             self._sensor_channels = _SensorChannels(self._context)
@@ -784,6 +808,10 @@ class EpisodeRecorder:
             head = proto.entity_head(ns, scene.WORLD, "road_users")
             ch.users.log(proto.scene_update_bytes(head, body), ns)
             self._users_shown = len(users.kinds) > 0
+        signals = getattr(task, "junction_signals", None)
+        signals = signals() if signals is not None else None
+        if signals is not None:
+            self._log_junction(signals, data.time, ns)
         every = self.options.camera_every
         if every and c["camera"] >= 0 and self._steps % every == 0:
             self._log_image(task, c, data, stamp, ns)

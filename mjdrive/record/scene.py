@@ -244,3 +244,25 @@ def ego_entity(length: float, width: float, height: float, stamp: fm.Timestamp |
         pose=fm.Pose(position=fm.Vector3(z=height / 2), orientation=fm.Quaternion(w=1.0)),
         size=fm.Vector3(x=length, y=width, z=height), color=color(EGO_RGBA))
     return fm.SceneEntity(timestamp=stamp, frame_id=EGO, id="ego", frame_locked=True, cubes=[cube])
+
+
+SIGNAL_RGBA = {"green": (0.1, 0.85, 0.25, 1.0), "amber": (1.0, 0.7, 0.0, 1.0), "red": (0.9, 0.1, 0.1, 1.0),
+               "stop": (0.8, 0.05, 0.05, 1.0)}  # by what a junction entry shows
+SIGNAL_SIZE, SIGNAL_HEIGHT = 0.6, 3.0  # [m] the lamp's cube and how high it hangs
+
+
+def signals_entity(xy: np.ndarray, states: list[str], stamp: fm.Timestamp | None = None) -> fm.SceneEntity:
+    """The junction entries' signals at their lines' kerbside points (E, 2) [m]: a lamp coloured by what each
+    shows (green, amber, red), a stop sign's lamp red and labelled STOP."""
+    cubes, texts = [], []
+    for (x, y), state in zip(np.asarray(xy, float).reshape(-1, 2), states, strict=True):
+        position = fm.Vector3(x=float(x), y=float(y), z=SIGNAL_HEIGHT)
+        cubes.append(fm.CubePrimitive(pose=fm.Pose(position=position, orientation=fm.Quaternion(w=1.0)),
+                                      size=fm.Vector3(x=SIGNAL_SIZE, y=SIGNAL_SIZE, z=SIGNAL_SIZE),
+                                      color=color(SIGNAL_RGBA[state])))
+        if state == "stop":
+            texts.append(fm.TextPrimitive(
+                pose=fm.Pose(position=fm.Vector3(x=float(x), y=float(y), z=SIGNAL_HEIGHT + 0.8),
+                             orientation=fm.Quaternion(w=1.0)),
+                billboard=True, font_size=14.0, scale_invariant=True, color=color(SIGNAL_RGBA["stop"]), text="STOP"))
+    return fm.SceneEntity(timestamp=stamp, frame_id=WORLD, id="junction/signals", cubes=cubes, texts=texts)

@@ -46,8 +46,9 @@ ROW_FIELDS: dict[str, str] = {
     "success": "the episode reached its goal",
     "collision": "the ego touched something other than the road",
     "off_road": "the ego's whole footprint left the road at some step",
-    "end": "why it ended: arrived, collision, physics_error, time_limit, lane_invasion, off_route, off_road, "
-           "terminated (another task rule), interrupted (stopped before the env ended it)",
+    "end": "why it ended: arrived, collision, physics_error, red_light or stop_sign (urban junction control), "
+           "time_limit, lane_invasion, off_route, off_road, terminated (another task rule), interrupted (stopped "
+           "before the env ended it)",
     "exit": "roundabout: the exit taken, counted from the entry (1 first = right turn, 2 second = straight on, "
             "3 third = left turn); else null",
     **{row: f"{_COMFORT_MEANING[name]} (comfort, see above; null: unknown)" for name, row in COMFORT_FIELDS.items()},
@@ -79,6 +80,8 @@ def end_reason(info: dict, terminated: bool, truncated: bool, interrupted: bool 
         return "collision"
     if info.get("physics_error"):
         return "physics_error"
+    if info.get("violation"):  # urban tasks' junction control: "red_light" or "stop_sign"
+        return str(info["violation"])
     if info.get("success"):
         return "arrived"
     if interrupted:

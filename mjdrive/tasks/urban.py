@@ -54,8 +54,11 @@ from mjdrive.tasks.base import (
     environment_config,
 )
 from mjdrive.tasks.decisions import ACTIONS, RouteTraffic
+from mjdrive.tasks.junction_watch import FEATURES as JUNCTION_FEATURES
+from mjdrive.tasks.junction_watch import JunctionWatch
 from mjdrive.traffic import KIND_NAMES, EgoState, Traffic, TrafficConfig, counts_to_kinds, slots
 from mjdrive.traffic.intentions import SCENARIOS as INTENTION_SCENARIOS
+from mjdrive.traffic.junction_control import CONTROLS, STATE_NAMES, SignalTiming
 from mjdrive.traffic.urban import URBAN_CONFIG, default_counts, urban_traffic
 
 SUITE = containers.TaggedTasks()
@@ -105,6 +108,10 @@ class UrbanConfig(DrivingConfig):
                                     ge=0.0, le=1.0)
     operative: OperativeConfig = param(OperativeConfig(), "with `decisions`: the operative level's parameters "
                                        "(a dict of its keywords)")
+    junction_control: str = param("give_way", "the crossroad's control: give-way lines, stop signs on the minor road, "
+                                  "traffic lights, or one of the three drawn per episode (then the observation gains "
+                                  "`junction`)", choices=(*CONTROLS, "random"))
+    signals: SignalTiming = param(SignalTiming(), "the traffic lights' cycle (a dict of its keywords)")
 
     def check(self) -> None:
         if self.road_users is not None and sum(self.road_users.values()) > 100:
@@ -151,6 +158,10 @@ class UrbanTask(DrivingTask):
         self._interval_starts = np.array([s0 for _, s0, _ in intervals], dtype=float)  # [m]
         self._interval_ends = np.array([s1 for _, _, s1 in intervals], dtype=float)  # [m]
         self._interval_names = [name for name, _, _ in intervals] + [FOLLOW]  # index -1: outside every interval
+        self.junction_watch = JunctionWatch(route.route, self.route_starts, self.traffic.junctions,
+                                            0.5 * self.params.length, DISTANCE_SCALE)
+        self.junction_observed = config.junction_control != "give_way"  # the observation's `junction`
+        self._lamps: np.ndarray | None = None  # [m] (E, 2) where the logs draw each entry's signal
         self.step_period = CONTROL_TIMESTEP  # [s] of one env step
         self.decisions: tuple[str, ...] | None = None  # the decision action set's names (None: pedals)
         if config.decisions:
@@ -195,8 +206,11 @@ class UrbanTask(DrivingTask):
         self.route_s, self.lane_offset, self.xy = self.start_s, 0.0, np.array([x, y], dtype=float)
         self._position = float(x), float(y)  # [m] self.xy as floats
         self._ego_fn = functools.partial(self.ego_state, physics)
-        rng = np.random.default_rng(self.random.randint(2**31))
+        traffic_seed = self.random.randint(2**31)
+        rng = np.random.default_rng(traffic_seed)
+        self._set_junction_control(np.random.default_rng((traffic_seed, 44)))
         self.traffic.reset(rng, self.ego_state(physics), warmup=self.config.warmup)
+        self.junction_watch.reset()
         self.traffic.write(physics.raw_data)
         self.reset_safety_sensors(physics)
         self._update_ego(physics)
@@ -204,6 +218,7 @@ class UrbanTask(DrivingTask):
             "success": False, "collision": False, "off_route": False, "physics_error": None,
             "scenario": self.active_scenario(), "elapsed_time": 0.0, "average_speed": 0.0, "distance": 0.0,
             "steps": 0, "episode_reward": 0.0, "route_length": self.route_end - ARRIVAL_MARGIN - self.start_s,
+            "junction_control": self.junction_control, "violation": None,
         }
         self._step_reward = 0.0
         self._ended = False
@@ -215,6 +230,33 @@ class UrbanTask(DrivingTask):
             self.decision = self.decisions[0]
             self.ticks = []
             self.info.update(self._decision_info())
+
+    def junction_signals(self) -> dict | None:
+        """What every junction entry shows now, for the logs: {"control", "entries": [{"lane", "group", "state"}],
+        "xy": (E, 2) [m] each entry's lamp at its line's kerb}; None under give-way."""
+        traffic = self.traffic
+        if not traffic.junctions.active:
+            return None
+        rm, junctions = self.road_map, traffic.junctions
+        if self._lamps is None:
+            lanes = [rm.lanes[int(i)] for i in junctions.lane]
+            self._lamps = np.array([lane.position(line, -0.5 * lane.width - 0.7)
+                                    for lane, line in zip(lanes, junctions.line, strict=True)]).reshape(-1, 2)
+        entries = [{"lane": rm.lanes[int(lane)].name, "group": ("main", "minor")[int(group)],
+                    "state": STATE_NAMES[int(state)]}
+                   for lane, group, state in zip(junctions.lane, junctions.group, traffic.entry_state, strict=True)]
+        return {"control": self.junction_control, "entries": entries, "xy": self._lamps}
+
+    def _set_junction_control(self, rng: np.random.Generator) -> None:
+        """This episode's junction control (`junction_control`; "random": drawn from `rng`, a stream of its own so
+        that the traffic's draws stay those of a give-way episode), the lights starting anywhere in their cycle."""
+        control = self.config.junction_control
+        offset = 0.0
+        if control != "give_way":
+            control = CONTROLS[int(rng.integers(len(CONTROLS)))] if control == "random" else control
+            offset = float(rng.uniform(0.0, self.config.signals.cycle))
+        self.junction_control = control
+        self.traffic.set_junction_control(control, self.config.signals, offset)
 
     def substep_period(self) -> float:
         """[s] between substeps: the traffic's pose period (mocap poses written and contacts sampled)."""
@@ -330,6 +372,8 @@ class UrbanTask(DrivingTask):
         self._chassis = yaw, self.speed, left  # `read_chassis`' hand-over to the comfort sample
         self.xy, self._position, self.yaw = np.array([x, y]), (x, y), yaw
         self.scenario = self._interval_names[k]
+        if self.traffic.junctions.active:
+            self.junction_watch.update(self.route_s, self.speed, self.traffic.entry_state)
 
     def active_scenario(self) -> str:
         """The tactical trajectory's scenario at the ego's place on the route."""
@@ -350,7 +394,9 @@ class UrbanTask(DrivingTask):
         off_route = abs(self.lane_offset) > self.config.off_route
         info["collision"] |= collision
         info["off_route"] |= off_route and not collision
-        info["success"] = arrived and not info["collision"]
+        violation = self.junction_watch.violation if not info["collision"] else None
+        info["violation"] = violation
+        info["success"] = arrived and not info["collision"] and violation is None
         info["scenario"] = self.active_scenario()
         info["steps"] += 1
         info["elapsed_time"] = info["steps"] * self.step_period
@@ -361,8 +407,11 @@ class UrbanTask(DrivingTask):
         crash = COLLISION_REWARD * collision
         self.reward_terms = {"speed": speed, "arrival": arrival, "collision": crash}
         self._step_reward = speed + arrival + crash  # their sum, in this order
+        if violation is not None and not self._ended:  # running a red light or a stop sign: as a collision
+            self.reward_terms["violation"] = COLLISION_REWARD
+            self._step_reward += COLLISION_REWARD
         info["episode_reward"] += self._step_reward
-        self._ended = collision or arrived or off_route
+        self._ended = collision or arrived or off_route or violation is not None
         if self.decisions is not None:
             info.update(self._decision_info())
 
@@ -384,6 +433,8 @@ class UrbanTask(DrivingTask):
                 ego=ego, scenario=specs.BoundedArray((len(SCENARIOS),), np.float32, 0.0, 1.0, "scenario"),
                 adversaries=specs.BoundedArray((self.config.adversaries, ADVERSARY_COLUMNS), np.float32, 0.0, 1.0,
                                                "adversaries"))
+        if self.junction_observed:
+            spec["junction"] = specs.BoundedArray((JUNCTION_FEATURES,), np.float32, 0.0, 1.0, "junction")
         spec.update(self.sensor_spec(physics))
         return spec
 
@@ -428,6 +479,9 @@ class UrbanTask(DrivingTask):
             ego, adversaries = self._features()
             obs = collections.OrderedDict(ego=ego, scenario=_SCENARIO_ONE_HOT[self.scenario].copy(),
                                           adversaries=adversaries)
+        if self.junction_observed:
+            obs["junction"] = self.junction_watch.features(self.route_s, self.traffic.entry_state,
+                                                           self.traffic.junctions.control)
         obs.update(self.sensor_observation(physics))
         return obs
 

@@ -95,14 +95,29 @@ def line_gaps(junctions: Junctions, offset: np.ndarray, s: np.ndarray, length: n
     return offset[:, junctions.lane] + junctions.line[None, :] - front[:, None]
 
 
+def at_rest_at_line(gap, speed):
+    """Whether a vehicle whose front bumper is `gap` [m] before a line (negative: past it) at `speed` [m/s] has come
+    to rest there (a stop sign's demand; scalars or arrays)."""
+    return (gap > -COMMITTED) & (gap < HALT_RANGE) & (speed < HALT_SPEED)
+
+
+def violation(state, halted):
+    """What crossing a line showing `state` is, for a vehicle that has (`halted`) or has not come to rest at it:
+    "red_light", "stop_sign" or None (green, amber, a stop sign after stopping)."""
+    if state == RED:
+        return "red_light"
+    if state == STOP_SIGN and not halted:
+        return "stop_sign"
+    return None
+
+
 def halted_lanes(junctions: Junctions, states: np.ndarray, lane: np.ndarray, gaps: np.ndarray, speed: np.ndarray,
                  halted: np.ndarray) -> np.ndarray:
     """(F,) the stop-sign entry each follower has come to rest at (-1: none): kept while it is on that lane, set when
     it stands (speed [m/s] < HALT_SPEED) within HALT_RANGE of a stop sign's line on its current lane (`lane` (F,))."""
     out = np.where(lane == halted, halted, -1)
     here = (junctions.lane[None, :] == lane[:, None]) & (states[None, :] == STOP_SIGN)
-    at_rest = here & (gaps > -COMMITTED) & (gaps < HALT_RANGE) & (speed[:, None] < HALT_SPEED)
-    rested = at_rest.any(axis=1)
+    rested = (here & at_rest_at_line(gaps, speed[:, None])).any(axis=1)
     return np.where(rested, lane, out)
 
 

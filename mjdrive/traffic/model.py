@@ -425,11 +425,11 @@ class Traffic:
         had not come to rest at (`stats`)."""
         v, junctions = self.vehicles, self.junctions
         left = active_before & v.active & (v.path[:, 0] != lane_before)
-        at_entry = (lane_before[:, None] == junctions.lane[None, :]) & left[:, None]  # (NV, E)
-        state = self.entry_state[None, :]
-        self.stats["red_light_violations"] += int((at_entry & (state == jc.RED)).any(axis=1).sum())
-        ran_sign = at_entry & (state == jc.STOP_SIGN) & (self.halted[:, None] != junctions.lane[None, :])
-        self.stats["stop_sign_violations"] += int(ran_sign.any(axis=1).sum())
+        for row, entry in zip(*np.nonzero((lane_before[:, None] == junctions.lane[None, :]) & left[:, None]),
+                              strict=True):  # the few vehicles that entered the junction in this period
+            kind = jc.violation(self.entry_state[entry], self.halted[row] == junctions.lane[entry])
+            if kind is not None:
+                self.stats[f"{kind}_violations"] += 1
 
     # --- poses -------------------------------------------------------------------------------------------
     def _make_plan(self, start: np.ndarray) -> Poses:
