@@ -27,7 +27,7 @@ $(STAMP)/system:
 TORCH_INDEX ?=
 $(STAMP)/python: pyproject.toml $(STAMP)/system
 	$(PIP) install -q torch==2.13.0 $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX))
-	$(PIP) install -q -e ".[learn,dev,ray,plot]"
+	$(PIP) install -q -e ".[learn,dev,ray,plot,opendrive]"
 	$(PYTHON) -m mjdrive.envs.compile_kernels  # compile the numba kernels once into the user's cache
 	@touch $@
 

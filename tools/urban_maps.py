@@ -28,9 +28,8 @@ from tools.urban_traffic import run as run_traffic
 MAP_FILE = "results/urban/maps/merge_first.yaml"  # the committed example map file
 REORDERED = {"order": ["crossroad", "roundabout", "road", "merge"], "lane_width": 3.0,
              "roundabout": {"radius": 20.0, "arms": 5, "exit_arm": 4},
-             "crossroad": {"crossing_angle": round(math.radians(70), 4), "turn": "left"},
-             "merge": {"main_lanes": 2, "merge_angle": round(math.radians(45), 4), "slip_radius": 30.0}}
-DEG = math.pi / 180.0
+             "crossroad": {"crossing_angle": math.radians(70), "turn": "left"},
+             "merge": {"main_lanes": 2, "merge_angle": math.radians(45), "slip_radius": 30.0}}
 # (label, task, map): each piece alone on its scenario task, one parameter moved to the edges of its range
 SWEEP: list[tuple[str, str, dict]] = [
     *[(f"roundabout lane_width {w:g} m", "roundabout", {"lane_width": w}) for w in (2.5, 5.0)],
@@ -42,14 +41,14 @@ SWEEP: list[tuple[str, str, dict]] = [
     *[(f"road lane_width {w:g} m", "lane_change", {"lane_width": w}) for w in (2.5, 5.0)],
     ("road 3 lanes, 2 opposite", "lane_change", {"road": {"lanes": 3, "opposite_lanes": 2, "taper_length": 60.0}}),
     *[(f"crossroad lane_width {w:g} m", "crossroad", {"lane_width": w}) for w in (2.5, 3.0, 5.0)],
-    *[(f"crossroad angle {a} deg", "crossroad", {"crossroad": {"crossing_angle": round(a * DEG, 4)}})
+    *[(f"crossroad angle {a} deg", "crossroad", {"crossroad": {"crossing_angle": math.radians(a)}})
       for a in (50, 130)],
     ("crossroad main road 2 lanes", "crossroad", {"crossroad": {"main_lanes": 2}}),
     ("crossroad minor road 2 lanes", "crossroad", {"crossroad": {"minor_lanes": 2}}),
     *[(f"crossroad turn {turn}", "crossroad", {"crossroad": {"turn": turn}}) for turn in ("left", "right")],
     *[(f"merge lane_width {w:g} m", "merge", {"lane_width": w}) for w in (2.5, 5.0)],
-    ("merge angle 20 deg", "merge", {"merge": {"merge_angle": round(20 * DEG, 4), "slip_radius": 120.0}}),
-    ("merge angle 90 deg", "merge", {"merge": {"merge_angle": round(90 * DEG, 4), "slip_radius": 12.0}}),
+    ("merge angle 20 deg", "merge", {"merge": {"merge_angle": math.radians(20), "slip_radius": 120.0}}),
+    ("merge angle 90 deg", "merge", {"merge": {"merge_angle": math.radians(90), "slip_radius": 12.0}}),
     ("merge main road 3 lanes", "merge", {"merge": {"main_lanes": 3}}),
 ]
 SCENARIO_PIECE = {"roundabout": "roundabout", "lane_change": "road", "crossroad": "crossroad", "merge": "merge"}
@@ -120,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"[{k + 1}/{len(chosen)}] {label}: overlaps {overlaps}, free stop {free:.1f} s, autopilot "
               f"{success:.0f}% ({time.perf_counter() - start:.0f} s)", file=sys.stderr, flush=True)
     lines += ["", "The first row's map, as given to `--task-kwarg map=...` (YAML):", "", "```yaml",
-              *_yaml(REORDERED), "```"]
+              *_yaml(REORDERED), "```", "", "(angles in radians: crossing_angle 70 deg, merge_angle 45 deg)"]
     publish("\n".join(lines) + "\n", args.out)
     return 1 if bad else 0
 

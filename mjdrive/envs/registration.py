@@ -21,10 +21,10 @@ GYM_IDS: dict[str, tuple[str, str, dict]] = {
        for level in (120, 140, 160, 210)},
     **{f"mjdrive/Urban-{name}-v0": ("urban", task, {"observation": "features"})
        for name, task in (("Roundabout", "roundabout"), ("LaneChange", "lane_change"), ("Crossroad", "crossroad"),
-                          ("Merge", "merge"), ("Concatenated", "concatenated"))},
+                          ("Merge", "merge"), ("Concatenated", "concatenated"), ("OpenDrive", "opendrive"))},
     **{f"mjdrive/Urban-{name}-Camera-v0": ("urban", task, {"observation": "camera"})
        for name, task in (("Roundabout", "roundabout"), ("LaneChange", "lane_change"), ("Crossroad", "crossroad"),
-                          ("Merge", "merge"), ("Concatenated", "concatenated"))},
+                          ("Merge", "merge"), ("Concatenated", "concatenated"), ("OpenDrive", "opendrive"))},
 }
 
 

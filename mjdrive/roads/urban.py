@@ -181,6 +181,31 @@ def route_through(composed: ComposedMap) -> UrbanRoute:
                       zones.on_route(rm, route))
 
 
+JUNCTION_LEAD = 20.0  # [m] an imported map's crossroad scenario starts this far before a junction
+
+
+def route_on(road_map: RoadMap, route: Sequence[int]) -> UrbanRoute:
+    """A map without pieces (an imported one) with the ego's `route` (lane ids): a crossroad scenario from
+    JUNCTION_LEAD m before each junction the route crosses to the junction's exit, the conflict zones."""
+    offsets = route_offsets(road_map, route)
+    intervals, k = [], 0
+    while k < len(route):
+        if road_map.lanes[route[k]].in_junction:
+            j = k
+            while j + 1 < len(route) and road_map.lanes[route[j + 1]].in_junction:
+                j += 1
+            s0, s1 = max(offsets[k] - JUNCTION_LEAD, 0.0), offsets[j] + road_map.lanes[route[j]].length
+            if not intervals or s0 >= intervals[-1][2]:
+                intervals.append(("crossroad", float(s0), float(s1)))
+            k = j
+        k += 1
+    zones = conflict_zones(road_map)
+    polyline = road_map.route_polyline(list(route))
+    polyline.setflags(write=False)
+    return UrbanRoute(ComposedMap(road_map, []), tuple(route), polyline, TacticalTrajectory(tuple(intervals)), zones,
+                      zones.on_route(road_map, route))
+
+
 def concatenated(urban_map: UrbanMap | Mapping | None = None, **keywords) -> ComposedMap:
     """The pieces of Fig. 8 chained in route order, built from their parameters: `urban_map` (an UrbanMap, or a
     dict of its keywords: `order`, `roundabout`, `road`, `crossroad`, `merge`) or those keywords directly.

@@ -33,7 +33,8 @@ from mjdrive.traffic.params import PATH
 
 FOLLOW, LANE_CHANGE = "follow", "lane_change"
 ACTIONS = {"roundabout": ("drive", "stop"), "crossroad": ("drive", "stop"), "merge": ("drive", "stop"),
-           "lane_change": ("keep", "left", "right"), "concatenated": ("drive", "stop", "left", "right")}
+           "lane_change": ("keep", "left", "right"), "concatenated": ("drive", "stop", "left", "right"),
+           "opendrive": ("drive", "stop", "left", "right")}
 SCENARIO_ACTIONS = {LANE_CHANGE: {"keep": DRIVE, "drive": DRIVE, "left": LEFT, "right": RIGHT},
                     "roundabout": {"drive": DRIVE, "stop": STOP}, "crossroad": {"drive": DRIVE, "stop": STOP},
                     "merge": {"drive": DRIVE, "stop": STOP}}

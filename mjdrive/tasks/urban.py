@@ -34,14 +34,16 @@ from dm_control.utils import containers
 from dm_env import specs
 
 from mjdrive import world
+from mjdrive.assets import MAPS_DIR
 from mjdrive.config import ConfigError, action_index, param
 from mjdrive.control.operative import OperativeConfig, OperativeLevel
 from mjdrive.control.speed_profile import route_speed_profile
 from mjdrive.roads import Lane
 from mjdrive.roads.conflicts import MERGE
+from mjdrive.roads.opendrive import longest_route, read_opendrive, route_between
 from mjdrive.roads.ports import ComposedMap
 from mjdrive.roads.route_frame import RouteFrame
-from mjdrive.roads.urban import FOLLOW, UrbanRoute, concatenated, route_offsets, route_through
+from mjdrive.roads.urban import FOLLOW, UrbanRoute, concatenated, route_offsets, route_on, route_through
 from mjdrive.roads.urban_params import UrbanMap
 from mjdrive.tasks import kernels
 from mjdrive.tasks.base import (
@@ -94,6 +96,11 @@ class UrbanConfig(DrivingConfig):
     map: UrbanMap | None = param(None, "the map: the pieces' order and parameters ({order: [...], roundabout: "
                                  "{...}, road: {...}, crossroad: {...}, merge: {...}}), or the path of a YAML or "
                                  "JSON file of them; None: the task's pieces at their defaults")
+    opendrive: str | None = param(None, "urban/opendrive: the OpenDRIVE file (.xodr) to drive, or a shipped map's "
+                                  "name (four_way, multilane) (the `opendrive` extra)")
+    route_points: tuple[float, float, float, float] | None = param(
+        None, "urban/opendrive: the route's start x, y and goal x, y (the nearest lanes; None: the longest route)",
+        "m")
     road_users: dict[str, int] | None = param(None, "road users by kind, overriding the map's default",
                                               ge=0, le=100, keys=tuple(k for k in KIND_NAMES if k != "pedestrian"))
     traffic_config: TrafficConfig = param(URBAN_CONFIG, "traffic behaviour constants (a dict of its keywords)")
@@ -143,7 +150,7 @@ class UrbanTask(DrivingTask):
         self.route_starts = route_offsets(route.road_map, route.route)  # [m] along the route
         self._route_lanes = np.array(route.route, dtype=np.int64)  # the route's lane ids
         self.route_end = float(self.route_frame.s0[-1] + self.route_frame.length[-1])  # [m]
-        self.start_s = 0.0 if scenario == "concatenated" else max(
+        self.start_s = 0.0 if scenario in ("concatenated", "opendrive") else max(
             0.0, route.tactical.interval(scenario)[0] - config.start_before)
         # the conflict points ahead on the route, by the scenario they lie in
         rc = route.route_conflicts
@@ -490,8 +497,23 @@ class UrbanTask(DrivingTask):
 
 
 @functools.lru_cache(maxsize=8)
-def _route(name: str, urban_map: UrbanMap | None) -> UrbanRoute:
+def _route(name: str, urban_map: UrbanMap | None, opendrive: str | None = None,
+           route_points: tuple[float, ...] | None = None) -> UrbanRoute:
     """The map and route of a task (built once per process and map; maps are immutable data)."""
+    if name == "opendrive":
+        if opendrive is None:
+            raise ConfigError("urban/opendrive needs opendrive=FILE.xodr (an OpenDRIVE file, or a shipped map: "
+                              f"{', '.join(sorted(p.stem for p in MAPS_DIR.glob('*.xodr')))})")
+        if urban_map is not None:
+            raise ConfigError("urban/opendrive reads its map from `opendrive`; `map` is for the other urban tasks")
+        shipped = MAPS_DIR / f"{opendrive}.xodr"
+        road_map = read_opendrive(shipped if "/" not in opendrive and shipped.is_file() else opendrive)
+        route = (longest_route(road_map) if route_points is None else
+                 route_between(road_map, route_points[:2], route_points[2:]))
+        return route_on(road_map, route)
+    for keyword, value in (("opendrive", opendrive), ("route_points", route_points)):
+        if value is not None:
+            raise ConfigError(f"{keyword}={value!r}: only urban/opendrive takes it (urban/{name} takes `map`)")
     urban_map = urban_map or UrbanMap()
     pieces = urban_map.pieces(PIECES[name])
     if name != "concatenated" and PIECES[name][0] not in pieces:
@@ -507,7 +529,7 @@ def _make(name: str, config: UrbanConfig, environment_kwargs) -> DrivingEnvironm
     if config.decisions and abs(env_kwargs["control_timestep"] - period) > 1e-9:
         raise ConfigError(f"{where}: with decisions the env step is the decision period ({period:g} s); set "
                           "decision_period instead of control_timestep")
-    route = _route(name, config.map)
+    route = _route(name, config.map, config.opendrive, config.route_points)
     composed: ComposedMap = route.composed
     kinds = counts_to_kinds(default_counts(composed) if config.road_users is None else config.road_users)
     model = world.build(route.road_map, vehicle=config.vehicle, traffic=slots(kinds), timestep=config.physics_dt)
@@ -516,13 +538,13 @@ def _make(name: str, config: UrbanConfig, environment_kwargs) -> DrivingEnvironm
     return DrivingEnvironment(physics, task, time_limit=config.time_limit, **env_kwargs)
 
 
-def _register(name: str, time_limit: float, doc: str):
+def _register(name: str, time_limit: float, doc: str, **defaults):
     def build(config: UrbanConfig, environment_kwargs=None) -> DrivingEnvironment:
         return _make(name, config, environment_kwargs)
 
     build.__name__ = name
     build.__doc__ = doc
-    return SUITE.add("study002", "urban")(configured_task(UrbanConfig, time_limit=time_limit)(build))
+    return SUITE.add("study002", "urban")(configured_task(UrbanConfig, time_limit=time_limit, **defaults)(build))
 
 
 roundabout = _register("roundabout", 90.0, "Enter the roundabout and leave at the route's exit, in traffic.")
@@ -531,3 +553,5 @@ crossroad = _register("crossroad", 90.0, "Cross the main road from the minor roa
 merge = _register("merge", 60.0, "Join the main road from the right through the acceleration lane.")
 concatenated_route = _register("concatenated", 400.0, "The whole route: roundabout, two-lane road, crossroad, "
                                "merge (Fig. 8).")
+opendrive = _register("opendrive", 300.0, "Drive a route across an OpenDRIVE map (opendrive=FILE.xodr or a shipped "
+                      "map's name), in traffic.", opendrive="four_way")

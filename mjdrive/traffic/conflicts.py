@@ -188,7 +188,7 @@ def zone_state(agents, vehicles, approaches, c, control):
             stoppable[a, r] = a != nv and can_stop(v_a[a], to_own)
             claiming[a, r] = before_line and at_line and waited[a] >= c.impatience and ap.yields[partner]
             in_zone[a, r] = ins and f_o > ap.o_in[r]
-            t_line[a, r] = maximum(other_stop - f_o, 0.0) / pace
+            t_line[a, r] = 0.0 if before_line and at_line else maximum(other_stop - f_o, 0.0) / pace
             waiting[a, r] = np.isfinite(f_o) and not ins and f_o <= ap.o_in[r] and not np.isfinite(off_own)
             d = ap.o_out[r] - f_o
             d_merge[a, r] = d
@@ -261,7 +261,9 @@ def zone_stops(followers, agents, vehicles, approaches, slot_pos, c, control):
                        and yields)
             # --- crossings (and merges inside junctions) ---------------------------------------------------------
             soon = claimed_any = promised = occupied = first = False
-            t_line_me = maximum(ap_stop[r] - front_me, 0.0) / maximum(v_a[row], c.merge_speed)
+            # standing first in line (within AT_LINE of it) is arriving now, wherever before the line one stopped
+            standing = v_me < HELD_SPEED and me_stop < AT_LINE and me_stop > -COMMITTED
+            t_line_me = 0.0 if standing else maximum(ap_stop[r] - front_me, 0.0) / maximum(v_a[row], c.merge_speed)
             for k in range(n_on[r]):  # the agents on the other lane (the others neither conflict nor lead here)
                 a = on_lane[r, k]
                 if a == row:

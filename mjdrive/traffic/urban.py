@@ -67,7 +67,7 @@ def default_counts(composed: ComposedMap) -> dict[str, int]:
     times CHAIN_SHARE for a chain (at least 2 cars)."""
     lengths = _lane_lengths(composed)
     names = [piece.name for piece in composed.pieces]
-    if not set(names) <= set(PIECE_PARAMS):  # pieces built elsewhere: 1 car per 60 m of lane
+    if not names or not set(names) <= set(PIECE_PARAMS):  # imported, or pieces built elsewhere: 1 car per 60 m
         return {"car": max(2, int(sum(lengths.values()) / 60.0))}
     scale = {name: lengths[name] / _default_lane_length(name) for name in names}
     key = map_key(composed)

@@ -1,0 +1,199 @@
+"""OpenDRIVE (.xodr) road networks as mjdrive maps, read by pyxodr (the `opendrive` extra).
+
+pyxodr samples every road's reference line (line, arc, spiral, poly3, paramPoly3), its lane offset, lane sections
+and lane widths, and links lanes through road links and junction connections; this module turns its driving lanes
+into `Lane`s (centre lines in the direction of travel, mean width, the road's speed limit, in_junction for a
+junction's connecting roads), the lane graph (successors, same-direction neighbours), a paved area per junction, and
+finds routes between two points (Dijkstra over the lane graph). Conflict zones come from the map as for any other
+(`roads.conflict_zones`); a junction's lanes all have the same rank (first come, first served) unless the file says
+otherwise.
+
+    rm = read_opendrive("town.xodr")
+    route = route_between(rm, (x0, y0), (x1, y1))   # lane ids
+
+Why pyxodr: a maintained pure-Python reader (MIT) that samples the geometry itself, with light dependencies (lxml,
+shapely, scipy); CommonRoad's opendrive2lanelet pulls in commonroad-io, pyproj and protobuf and converts to lanelets
+rather than reading lanes. One defect is worked around here: pyxodr divides by the curvature's rate of change of a
+spiral, so a spiral of constant curvature (which generators such as scenariogeneration write) is given to it as the
+arc or line it is (its curvature changing slower than FLAT_SPIRAL: pyxodr's clothoid fails there).
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import os
+from collections.abc import Sequence
+
+import numpy as np
+
+from mjdrive.config import ConfigError
+from mjdrive.roads.lane import Lane, Marking, resample
+from mjdrive.roads.roadmap import RoadMap
+
+SPEED_UNITS = {"m/s": 1.0, "km/h": 1 / 3.6, "mph": 0.44704}  # OpenDRIVE's speed units, to m/s
+DEFAULT_SPEED = 50 / 3.6  # [m/s] a road without a speed record
+SAMPLE_STEP = 0.5  # [m] pyxodr's sampling resolution
+LANE_STEP = 1.0  # [m] the lanes' vertex spacing
+MIN_LANE_LENGTH = 1.0  # [m] shorter driving lanes (slivers between lane sections) are left out
+FLAT_SPIRAL = 1e-9  # [1/m^2] a spiral whose curvature changes slower than this is read as an arc
+
+
+def _missing_extra() -> ConfigError:
+    return ConfigError("reading OpenDRIVE needs the `opendrive` extra: pip install 'mjdrive[opendrive]'")
+
+
+def _parse(path: str | os.PathLike):
+    """The file's XML tree, its degenerate spirals normalised; ConfigError naming the file if it is not OpenDRIVE."""
+    try:
+        from lxml import etree
+    except ImportError:
+        raise _missing_extra() from None
+    name = os.fspath(path)
+    try:
+        tree = etree.parse(name)
+    except OSError as error:
+        raise ConfigError(f"opendrive={name!r}: cannot read the file ({error})") from None
+    except etree.XMLSyntaxError as error:
+        raise ConfigError(f"opendrive={name!r}: not an XML file ({error.msg}, line {error.lineno})") from None
+    root = tree.getroot()
+    if root.tag != "OpenDRIVE":
+        raise ConfigError(f"opendrive={name!r}: the root element is <{root.tag}>, not <OpenDRIVE>")
+    if not root.findall("road"):
+        raise ConfigError(f"opendrive={name!r}: no <road> in the file")
+    for geometry in root.iter("geometry"):
+        spiral = geometry.find("spiral")
+        if spiral is None:
+            continue
+        start, end, length = (float(spiral.get("curvStart")), float(spiral.get("curvEnd")),
+                              float(geometry.get("length")))
+        if abs(end - start) < FLAT_SPIRAL * length:  # a spiral of (all but) constant curvature: the arc it is
+            curvature = 0.5 * (start + end)
+            geometry.remove(spiral)
+            if curvature == 0.0:
+                etree.SubElement(geometry, "line")
+            else:
+                etree.SubElement(geometry, "arc", curvature=repr(curvature))
+    return tree
+
+
+def _speed_limit(road_xml) -> float:
+    """[m/s] the road's first speed record (<type><speed max unit>), else DEFAULT_SPEED."""
+    for speed in road_xml.iter("speed"):
+        value = speed.get("max")
+        try:
+            limit = float(value) * SPEED_UNITS.get(speed.get("unit", "m/s"), 1.0)
+        except (TypeError, ValueError):
+            continue
+        if math.isfinite(limit) and limit > 0:
+            return limit
+    return DEFAULT_SPEED
+
+
+def read_opendrive(path: str | os.PathLike, name: str | None = None) -> RoadMap:
+    """The driving lanes of an OpenDRIVE file as a RoadMap (module docstring). ConfigError for a file that cannot be
+    read, is not OpenDRIVE, uses what pyxodr does not support, or has no driving lane."""
+    tree = _parse(path)
+    try:
+        from lxml import etree
+        from pyxodr.road_objects.network import RoadNetwork
+    except ImportError:
+        raise _missing_extra() from None
+    label = os.fspath(path)
+    try:
+        roads = RoadNetwork(io.BytesIO(etree.tostring(tree)), resolution=SAMPLE_STEP).get_roads()
+        lanes = [(road, k, lane) for road in roads for k, section in enumerate(road.lane_sections)
+                 for lane in section.lanes if lane.type == "driving"]
+        flows = {id(lane): lane.traffic_flow_line[:, :2] for _, _, lane in lanes}
+        successors = {id(lane): [id(s) for s in lane.traffic_flow_successors] for _, _, lane in lanes}
+    except (ValueError, KeyError, IndexError, ZeroDivisionError, AttributeError, TypeError) as error:
+        raise ConfigError(f"opendrive={label!r}: pyxodr cannot read it ({type(error).__name__}: {error})") from None
+    rm = RoadMap(name or os.path.splitext(os.path.basename(label))[0])
+    ids: dict[int, int] = {}
+    by_section: dict[tuple[str, int], dict[int, int]] = {}
+    junctions: dict[str, list[int]] = {}  # OpenDRIVE junction id -> its lanes
+    for road, k, lane in lanes:
+        centre = resample(flows[id(lane)], LANE_STEP)
+        length = float(np.hypot(*np.diff(centre, axis=0).T).sum()) if len(centre) > 1 else 0.0
+        if length < MIN_LANE_LENGTH:
+            continue
+        width = float(np.mean(np.hypot(*(lane.boundary_line[:, :2] - lane.lane_reference_line[:, :2]).T)))
+        junction = road.road_xml.get("junction", "-1")
+        inside = junction != "-1"
+        # markings: the centre line solid, between lanes of one direction broken (set below), the kerb solid
+        marking = Marking.NONE if inside else Marking.SOLID
+        index = rm.add_lane(Lane(centre, width, marking, marking, _speed_limit(road.road_xml),
+                                 f"road{road.id}/section{k}/lane{lane.id}", inside))
+        ids[id(lane)] = index
+        by_section.setdefault((road.id, k), {})[lane.id] = index
+        if inside:
+            junctions.setdefault(junction, []).append(index)
+    if not ids:
+        raise ConfigError(f"opendrive={label!r}: no driving lane in the file")
+    for key, index in ids.items():
+        for successor in successors[key]:
+            if successor in ids:
+                rm.connect(index, ids[successor])
+    for section in by_section.values():  # the lane one step nearer the reference line is the left neighbour
+        for lane_id, index in section.items():
+            inner = section.get(lane_id - int(np.sign(lane_id)))
+            if inner is not None:
+                rm.set_neighbours(inner, index)
+                if not rm.lanes[index].in_junction:
+                    rm.lanes[index].left_marking = rm.lanes[inner].right_marking = Marking.BROKEN
+    for group in junctions.values():  # each junction's paved area: the convex hull of its lanes' strips
+        strips = [np.vstack([lane.centre + lane.normals * lane.width / 2, lane.centre - lane.normals * lane.width / 2])
+                  for lane in (rm.lanes[i] for i in group)]
+        rm.add_area(_convex_hull(np.vstack(strips)))
+    return rm.freeze()
+
+
+def _convex_hull(points: np.ndarray) -> np.ndarray:
+    """Counter-clockwise convex hull (K, 2) of points (N, 2) (Andrew's monotone chain)."""
+    pts = np.unique(np.round(points, 6), axis=0)
+    if len(pts) < 3:
+        return pts
+
+    def half(seq):
+        out: list[np.ndarray] = []
+        for p in seq:
+            while len(out) >= 2 and np.cross(out[-1] - out[-2], p - out[-2]) <= 0:
+                out.pop()
+            out.append(p)
+        return out
+
+    lower, upper = half(pts), half(pts[::-1])
+    return np.array(lower[:-1] + upper[:-1])
+
+
+def route_between(road_map: RoadMap, start: Sequence[float], goal: Sequence[float]) -> list[int]:
+    """Lane ids of the shortest route (Dijkstra, `RoadMap.shortest_route`) from the lane nearest `start` (x, y) [m]
+    to the lane nearest `goal`; ConfigError if the goal cannot be reached from there."""
+    a, b = (road_map.locate(np.asarray(p, dtype=float)).lane for p in (start, goal))
+    try:
+        return road_map.shortest_route(int(a), int(b))
+    except ValueError:
+        raise ConfigError(f"route ({start[0]:g}, {start[1]:g}) -> ({goal[0]:g}, {goal[1]:g}): lane "
+                          f"{road_map.lanes[a].name} does not lead to lane {road_map.lanes[b].name}") from None
+
+
+def longest_route(road_map: RoadMap) -> list[int]:
+    """The longest of the shortest routes from a lane without a predecessor to any lane it reaches (a default route
+    across an imported map)."""
+    has_predecessor = {s for successors in road_map.successors for s in successors}
+    best: list[int] = []
+    best_length = -1.0
+    for start in (i for i in range(len(road_map.lanes)) if i not in has_predecessor):
+        for goal in range(len(road_map.lanes)):
+            if goal == start:
+                continue
+            try:
+                route = road_map.shortest_route(start, goal, allow_lane_change=False)
+            except ValueError:
+                continue
+            length = sum(road_map.lanes[i].length for i in route)
+            if length > best_length:
+                best, best_length = route, length
+    if not best:
+        raise ConfigError(f"map {road_map.name!r}: no route of two lanes or more")
+    return best
