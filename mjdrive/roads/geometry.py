@@ -166,3 +166,20 @@ def s_curve(a: ArrayLike, heading: float, length: float, shift: float) -> Path:
     radius = length / (2.0 * math.sin(angle))
     sign = math.copysign(1.0, shift)
     return Path(a, heading).arc(radius, sign * angle).arc(radius, -sign * angle)
+
+
+def convex_hull(points: np.ndarray) -> np.ndarray:
+    """Convex hull (K,2) of points (N,2), counter-clockwise (monotone chain)."""
+    pts = sorted({(round(float(px), 9), round(float(py), 9)) for px, py in points})
+
+    def half(seq):
+        out: list[tuple[float, float]] = []
+        for q in seq:
+            while len(out) >= 2 and ((out[-1][0] - out[-2][0]) * (q[1] - out[-2][1])
+                                     - (out[-1][1] - out[-2][1]) * (q[0] - out[-2][0])) <= 0:
+                out.pop()
+            out.append(q)
+        return out
+
+    lower, upper = half(pts), half(pts[::-1])
+    return np.array(lower[:-1] + upper[:-1])

@@ -28,6 +28,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from mjdrive.config import ConfigError
+from mjdrive.roads.geometry import convex_hull
 from mjdrive.roads.lane import Lane, Marking, resample
 from mjdrive.roads.roadmap import RoadMap
 
@@ -55,7 +56,7 @@ def _parse(path: str | os.PathLike):
     except OSError as error:
         raise ConfigError(f"opendrive={name!r}: cannot read the file ({error})") from None
     except etree.XMLSyntaxError as error:
-        raise ConfigError(f"opendrive={name!r}: not an XML file ({error.msg}, line {error.lineno})") from None
+        raise ConfigError(f"opendrive={name!r}: not an XML file ({error.msg})") from None
     root = tree.getroot()
     if root.tag != "OpenDRIVE":
         raise ConfigError(f"opendrive={name!r}: the root element is <{root.tag}>, not <OpenDRIVE>")
@@ -144,26 +145,8 @@ def read_opendrive(path: str | os.PathLike, name: str | None = None) -> RoadMap:
     for group in junctions.values():  # each junction's paved area: the convex hull of its lanes' strips
         strips = [np.vstack([lane.centre + lane.normals * lane.width / 2, lane.centre - lane.normals * lane.width / 2])
                   for lane in (rm.lanes[i] for i in group)]
-        rm.add_area(_convex_hull(np.vstack(strips)))
+        rm.add_area(convex_hull(np.vstack(strips)))
     return rm.freeze()
-
-
-def _convex_hull(points: np.ndarray) -> np.ndarray:
-    """Counter-clockwise convex hull (K, 2) of points (N, 2) (Andrew's monotone chain)."""
-    pts = np.unique(np.round(points, 6), axis=0)
-    if len(pts) < 3:
-        return pts
-
-    def half(seq):
-        out: list[np.ndarray] = []
-        for p in seq:
-            while len(out) >= 2 and np.cross(out[-1] - out[-2], p - out[-2]) <= 0:
-                out.pop()
-            out.append(p)
-        return out
-
-    lower, upper = half(pts), half(pts[::-1])
-    return np.array(lower[:-1] + upper[:-1])
 
 
 def route_between(road_map: RoadMap, start: Sequence[float], goal: Sequence[float]) -> list[int]:

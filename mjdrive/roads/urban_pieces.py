@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from mjdrive.roads.geometry import Path, left_normal, s_curve, unit, wrap_angle
+from mjdrive.roads.geometry import Path, convex_hull, left_normal, s_curve, unit, wrap_angle
 from mjdrive.roads.junctions import roundabout
 from mjdrive.roads.lane import Lane, Marking
 from mjdrive.roads.pieces import STRAIGHT_TOLERANCE, Arm, add_connectors, add_road, connector
@@ -164,23 +164,6 @@ def overtaking_road(params: OvertakingRoadParams | None = None, **kwargs) -> Pie
 # --- crossroad --------------------------------------------------------------------------------------------
 
 
-def _convex_hull(points: np.ndarray) -> np.ndarray:
-    """Convex hull (K,2) of points (N,2), counter-clockwise (monotone chain)."""
-    pts = sorted({(round(float(px), 9), round(float(py), 9)) for px, py in points})
-
-    def half(seq):
-        out: list[tuple[float, float]] = []
-        for q in seq:
-            while len(out) >= 2 and ((out[-1][0] - out[-2][0]) * (q[1] - out[-2][1])
-                                     - (out[-1][1] - out[-2][1]) * (q[0] - out[-2][0])) <= 0:
-                out.pop()
-            out.append(q)
-        return out
-
-    lower, upper = half(pts), half(pts[::-1])
-    return np.array(lower[:-1] + upper[:-1])
-
-
 def crossroad(params: CrossroadParams | None = None, **kwargs) -> Piece:
     """Four-way crossroad without signals (see `CrossroadParams`): the ego's approach runs east from the
     origin; it and the "straight" arm are the minor road (give-way lines at the end of their inbound
@@ -220,7 +203,7 @@ def crossroad(params: CrossroadParams | None = None, **kwargs) -> Piece:
         src = rm.predecessors(i)[0]
         turn = float(wrap_angle(lane.vertex_heading[-1] - lane.vertex_heading[0]))
         rm.lanes[i].priority = rm.lanes[src].priority - (YIELD_STEP if turn > STRAIGHT_TOLERANCE else 0)
-    rm.add_area(_convex_hull(np.array(mouths)))
+    rm.add_area(convex_hull(np.array(mouths)))
     k = 0 if p.turn == "left" else p.minor_lanes - 1
     via = (rm.lane_id(f"approach->{p.turn}_{k}"),)
     approach = [rm.lane_id(f"approach_in_{j}") for j in range(p.minor_lanes)]

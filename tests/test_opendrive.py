@@ -1,0 +1,166 @@
+"""OpenDRIVE import (`roads.opendrive`, pyxodr): lanes within 5 cm of the reader's own samples, reference lines
+against the standard's formulas (line, arc, poly3), the lane graph and routes across a junction, the
+`urban/opendrive` task with traffic and the autopilot, and bad files refused in one line."""
+
+from __future__ import annotations
+
+import io
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from lxml import etree
+from pyxodr.road_objects.network import RoadNetwork
+
+from mjdrive.assets import MAPS_DIR
+from mjdrive.config import ConfigError
+from mjdrive.envs import make_env
+from mjdrive.policies import make_policy
+from mjdrive.roads import conflict_zones
+from mjdrive.roads.opendrive import _parse, longest_route, read_opendrive, route_between
+from mjdrive.traffic import overlapping_pairs
+from mjdrive.traffic.lanes import polyline_distance
+
+ROAD = """<?xml version="1.0"?>
+<OpenDRIVE><header revMajor="1" revMinor="5"/>
+<road id="1" length="{length}" junction="-1"><type s="0" type="town"><speed max="40" unit="km/h"/></type>
+<planView><geometry s="0" x="10" y="5" hdg="0.3" length="{length}">{geometry}</geometry></planView>
+<lanes><laneSection s="0">
+<left><lane id="1" type="driving" level="false"><width sOffset="0" a="3.0" b="0" c="0" d="0"/></lane></left>
+<center><lane id="0" type="none" level="false"/></center>
+<right><lane id="-1" type="driving" level="false"><width sOffset="0" a="3.0" b="0" c="0" d="0"/></lane></right>
+</laneSection></lanes></road></OpenDRIVE>
+"""
+
+
+def _road(tmp_path, geometry: str, length: float):
+    path = tmp_path / "road.xodr"
+    path.write_text(ROAD.format(geometry=geometry, length=length))
+    return read_opendrive(path)
+
+
+def _local(xy: np.ndarray) -> np.ndarray:
+    """World points into the road's start frame (x0 = 10, y0 = 5, heading 0.3)."""
+    c, s = math.cos(0.3), math.sin(0.3)
+    d = xy - np.array([10.0, 5.0])
+    return np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])
+
+
+def test_a_line_an_arc_and_a_poly3_against_the_standard(tmp_path):
+    """The right lane's centre line is the reference line moved 1.5 m to the right: on a line, a circle of radius
+    1/k + 1.5 about the arc's centre, and the curve v(u) = c u^2 + d u^3 moved along its normal (OpenDRIVE 1.6 §7)."""
+    rm = _road(tmp_path, "<line/>", 50.0)
+    right = _local(rm.lanes[rm.lane_id("road1/section0/lane-1")].centre)
+    np.testing.assert_allclose(right[:, 1], -1.5, atol=1e-6)
+    assert rm.lanes[0].speed_limit == pytest.approx(40 / 3.6) and rm.lanes[0].width == pytest.approx(3.0)
+    k = 0.02
+    rm = _road(tmp_path, f'<arc curvature="{k}"/>', 60.0)
+    right = _local(rm.lanes[rm.lane_id("road1/section0/lane-1")].centre)
+    np.testing.assert_allclose(np.hypot(right[:, 0], right[:, 1] - 1 / k), 1 / k + 1.5, atol=0.01)
+    c, d = 0.004, -0.00005
+    rm = _road(tmp_path, f'<poly3 a="0" b="0" c="{c}" d="{d}"/>', 40.0)
+    left = _local(rm.lanes[rm.lane_id("road1/section0/lane1")].centre)  # runs against the reference line
+    u = np.linspace(0.0, 38.0, 400)
+    v = c * u**2 + d * u**3
+    slope = 2 * c * u + 3 * d * u**2
+    normal = np.column_stack([-slope, np.ones_like(u)]) / np.hypot(slope, 1.0)[:, None]
+    expected = np.column_stack([u, v]) + 1.5 * normal
+    assert polyline_distance(expected, left).max() < 0.05
+
+
+@pytest.mark.parametrize("name", ["four_way", "multilane"])
+def test_lanes_within_5_cm_of_the_readers_own_samples(name):
+    """Every driving lane's centre line against pyxodr's lane centre sampled ten times finer (5 cm)."""
+    path = MAPS_DIR / f"{name}.xodr"
+    rm = read_opendrive(path)
+    fine = RoadNetwork(io.BytesIO(etree.tostring(_parse(path))), resolution=0.05).get_roads()
+    checked = 0
+    for road in fine:
+        for k, section in enumerate(road.lane_sections):
+            for lane in section.lanes:
+                if lane.type != "driving":
+                    continue
+                ours = rm.lanes[rm.lane_id(f"road{road.id}/section{k}/lane{lane.id}")].centre
+                assert polyline_distance(lane.traffic_flow_line[:, :2], ours).max() < 0.05
+                checked += 1
+    assert checked == len(rm.lanes)
+
+
+def test_the_junction_lane_graph_and_a_route_across_it():
+    rm = read_opendrive(MAPS_DIR / "four_way.xodr")
+    incoming = [i for i, lane in enumerate(rm.lanes) if not lane.in_junction and rm.successors[i]]
+    assert len(incoming) == 4 and all(len(rm.successors[i]) == 3 for i in incoming)  # left, straight, right
+    for i in incoming:
+        for j in rm.successors[i]:
+            assert rm.lanes[j].in_junction
+            assert np.hypot(*(rm.lanes[j].centre[0] - rm.lanes[i].centre[-1])) < 0.05  # they meet
+    assert len(rm.areas) == 1  # the junction's paved area
+    west = rm.lanes[incoming[0]].centre[0]
+    route = route_between(rm, west, (190.0, -1.75))
+    assert rm.lanes[route[1]].in_junction and len(route) == 3
+    assert np.hypot(*(rm.lanes[route[-1]].centre[-1] - (192.0, -1.75))) < 5.0  # it ends where asked
+    zones = conflict_zones(rm)
+    assert len(zones.on_route(rm, route)) > 0  # the route crosses the other movements
+    with pytest.raises(ConfigError, match="does not lead to"):
+        route_between(rm, (190.0, -1.75), west)  # from the end of a lane that leaves the map
+
+
+def test_the_multilane_road_has_neighbours_and_a_road_link():
+    rm = read_opendrive(MAPS_DIR / "multilane.xodr")
+    right = rm.lane_id("road0/section0/lane-2")
+    assert rm.left_neighbour[right] == rm.lane_id("road0/section0/lane-1")
+    assert rm.successors[right] == [rm.lane_id("road1/section0/lane-2")]
+    assert len(longest_route(rm)) == 2
+
+
+def test_the_autopilot_crosses_an_imported_junction_in_traffic(drive_episode):
+    env = make_env("urban", "opendrive", opendrive="four_way")
+    task = env.unwrapped.task
+    assert task.urban.tactical.names == ("crossroad",) and task.traffic.nv >= 10
+    info = drive_episode(env, make_policy("autopilot", env), seed=0)
+    assert info["success"] and not info["collision"], info
+    traffic = task.traffic
+    overlaps = 0
+    for _ in range(int(120.0 / traffic.config.substep)):  # two more minutes of its traffic alone
+        traffic.advance(traffic.config.substep)
+        present = traffic.present
+        overlaps += len(overlapping_pairs(traffic.poses()[present], traffic.half_size[present])) > 0
+    assert overlaps == 0 and traffic.stats["spawned"] > 0
+
+
+def test_decisions_on_an_imported_map(drive_episode):
+    env = make_env("urban", "opendrive", opendrive="multilane", decisions=True, time_limit=60.0)
+    info = drive_episode(env, make_policy("rules", env), seed=0)
+    assert info["success"], info
+
+
+BAD_FILES = [
+    ("missing.xodr", None, r"cannot read the file"),
+    ("text.xodr", "not xml at all", r"not an XML file"),
+    ("other.xodr", "<OpenSCENARIO/>", r"the root element is <OpenSCENARIO>, not <OpenDRIVE>"),
+    ("empty.xodr", "<OpenDRIVE><header/></OpenDRIVE>", r"no <road> in the file"),
+    ("nolanes.xodr", ROAD.format(geometry="<line/>", length=50.0).replace('type="driving"', 'type="sidewalk"'),
+     r"no driving lane in the file"),
+]
+
+
+@pytest.mark.parametrize("name, text, message", BAD_FILES, ids=[b[0] for b in BAD_FILES])
+def test_bad_opendrive_files_are_one_line(tmp_path, name, text, message):
+    path = tmp_path / name
+    if text is not None:
+        path.write_text(text)
+    with pytest.raises(ConfigError, match=message):
+        make_env("urban", "opendrive", opendrive=str(path))
+
+
+def test_the_cli_reports_a_bad_opendrive_file_in_one_line(tmp_path):
+    path = tmp_path / "broken.xodr"
+    path.write_text("<OpenDRIVE><road")
+    result = subprocess.run([sys.executable, "-m", "mjdrive.cli", "run", "--task", "urban/opendrive", "--episodes",
+                             "1", "--task-kwarg", f"opendrive={path}"], capture_output=True, text=True, timeout=120)
+    lines = result.stderr.strip().splitlines()  # "building urban/opendrive ...", then the error
+    assert result.returncode == 2 and "Traceback" not in result.stderr and "not an XML file" in lines[-1], lines
+    with pytest.raises(ConfigError, match="only urban/opendrive takes it"):
+        make_env("urban", "crossroad", opendrive="four_way")
