@@ -23,6 +23,7 @@ import numpy as np
 from mjdrive.cli import ArgumentParser, int_at_least, positive_float, run_reporting_errors
 from mjdrive.config import parse_value
 from mjdrive.roads.conflicts import CROSSING
+from mjdrive.roads.ports import ComposedMap
 from mjdrive.roads.urban import concatenated
 from mjdrive.roads.urban_params import UrbanMap
 from mjdrive.traffic import overlapping_pairs
@@ -34,11 +35,12 @@ MAPS = {"roundabout": ("roundabout",), "lane_change": ("road",), "crossroad": ("
         "merge": ("merge",), "concatenated": ("roundabout", "road", "crossroad", "merge")}
 
 
-def run(name: str | UrbanMap, seed: int, minutes: float, control: str = "give_way") -> dict:
-    """One map (a registered map's name or an UrbanMap), one seed, its junctions under `control`: overlap substeps,
-    stops, zone throughput, vehicles per minute leaving each lane, cost, the traffic's stats (violations among
-    them)."""
-    composed = concatenated(order=MAPS[name]) if isinstance(name, str) else concatenated(name)
+def run(name: str | UrbanMap | ComposedMap, seed: int, minutes: float, control: str = "give_way") -> dict:
+    """One map (a registered map's name, an UrbanMap, or a map already built, e.g. an imported one), one seed, its
+    junctions under `control`: overlap substeps, stops, zone throughput, vehicles per minute leaving each lane, cost,
+    the traffic's stats (violations among them)."""
+    composed = (name if isinstance(name, ComposedMap) else concatenated(order=MAPS[name]) if isinstance(name, str)
+                else concatenated(name))
     traffic = urban_traffic(composed)
     traffic.set_junction_control(control, offset=float(seed))
     traffic.reset(np.random.default_rng(seed))
