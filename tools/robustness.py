@@ -272,6 +272,9 @@ def make_files(folder: Path) -> None:
     (folder / "cut.mcap").write_bytes(FIXTURE_LOG.read_bytes()[:2000])
     (folder / "empty_logs").mkdir()
     (folder / "a_file").write_text("x\n")
+    (folder / "broken_map.yaml").write_text("crossroad: [\n")
+    (folder / "broken.xodr").write_text("<OpenDRIVE><road")
+    (folder / "scenario.xosc").write_text("<OpenSCENARIO/>\n")
     # checkpoints evaluated on tasks they were not trained on
     checkpoints = ROOT / "results" / "checkpoints"
     (folder / "waypoints_policy.pt").write_bytes((checkpoints / "ppo_features_straight.pt").read_bytes())
@@ -362,6 +365,22 @@ def cases() -> list[Case]:
         c("suite.load", "roundabout/d120 traffic_config={'min_gp': 3}", "unknown keyword 'min_gp' (did you mean 'min_gap'?)", _load("roundabout", "d120", traffic_config={"min_gp": 3})),
         c("suite.load", "roundabout/d120 traffic_config={'pedestrian_wait': [9, 1]}", "the minimum must not exceed the maximum", _load("roundabout", "d120", traffic_config={"pedestrian_wait": [9, 1]})),
         c("suite.load", "roundabout/d120 traffic_config=5", "must be a mapping of TrafficConfig keywords", _load("roundabout", "d120", traffic_config=5)),
+        # --- maps as data, OpenDRIVE, junction control (urban tasks) -----------------------------------------
+        c("suite.load", "urban/concatenated map={'order': ['crossroad', 'bridge']}", "element 'bridge' is not one of 'roundabout', 'road', 'crossroad', 'merge'", _load("urban", "concatenated", map={"order": ["crossroad", "bridge"]})),
+        c("suite.load", "urban/concatenated map={'crossroad': {'lane_width': 6}}", "map.crossroad.lane_width=6: must be >= 2.5 and <= 5 [m]", _load("urban", "concatenated", map={"crossroad": {"lane_width": 6}})),
+        c("suite.load", "urban/concatenated map={'roundabout': {'radiuss': 20}}", "map.roundabout: unknown keyword 'radiuss' (did you mean 'radius'?)", _load("urban", "concatenated", map={"roundabout": {"radiuss": 20}})),
+        c("suite.load", "urban/concatenated map={'order': ['crossroad', 'merge'], 'crossroad': {'lane_width': 3}}", "lane widths 3.0 m and 3.5 m differ", _load("urban", "concatenated", map={"order": ["crossroad", "merge"], "crossroad": {"lane_width": 3}})),
+        c("suite.load", "urban/merge map={'order': ['crossroad']}", "urban/merge needs the 'merge' piece in the order", _load("urban", "merge", map={"order": ["crossroad"]})),
+        c("suite.load", "urban/concatenated map='missing_map.yaml'", "map: cannot read the file 'missing_map.yaml'", _load("urban", "concatenated", map="missing_map.yaml")),
+        c("suite.load", "urban/concatenated map='broken_map.yaml' (a YAML syntax error)", "map: the file 'broken_map.yaml' is not YAML or JSON (line 2", _load("urban", "concatenated", map="broken_map.yaml")),
+        c("suite.load", "urban/opendrive opendrive='missing.xodr'", "opendrive='missing.xodr': cannot read the file", _load("urban", "opendrive", opendrive="missing.xodr")),
+        c("suite.load", "urban/opendrive opendrive='broken.xodr' (cut XML)", "opendrive='broken.xodr': not an XML file", _load("urban", "opendrive", opendrive="broken.xodr")),
+        c("suite.load", "urban/opendrive opendrive='scenario.xosc' (OpenSCENARIO)", "the root element is <OpenSCENARIO>, not <OpenDRIVE>", _load("urban", "opendrive", opendrive="scenario.xosc")),
+        c("suite.load", "urban/opendrive opendrive='four_way' route_points=[0, 0, 0]", "route_points=[0, 0, 0]: must have 4 elements, got 3", _load("urban", "opendrive", route_points=[0, 0, 0])),
+        c("suite.load", "urban/crossroad opendrive='four_way'", "only urban/opendrive takes it", _load("urban", "crossroad", opendrive="four_way")),
+        c("suite.load", "urban/crossroad junction_control='roundabout'", "must be one of 'give_way', 'stop', 'lights', 'random'", _load("urban", "crossroad", junction_control="roundabout")),
+        c("suite.load", "urban/crossroad signals={'amber': 0}", "signals.amber=0: must be >= 1", _load("urban", "crossroad", signals={"amber": 0})),
+        c("python -m tools.urban_traffic", "python -m tools.urban_traffic --map '{order: [bridge]}'", "argument --map: --map.order=['bridge']: element 'bridge' is not one of", _tool("urban_traffic", "--map", "{order: [bridge]}")),
         c("suite.load", "roundabout/d999", "unknown task roundabout/d999", _load("roundabout", "d999")),
         c("suite.load", "roundabout/d21", "did you mean roundabout/d210?", _load("roundabout", "d21")),
         c("suite.load", "highway/merge", "unknown domain 'highway'", _load("highway", "merge")),

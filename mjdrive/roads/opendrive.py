@@ -51,6 +51,8 @@ def _parse(path: str | os.PathLike):
     except ImportError:
         raise _missing_extra() from None
     name = os.fspath(path)
+    if not os.path.isfile(name):
+        raise ConfigError(f"opendrive={name!r}: cannot read the file (no such file)")
     try:
         tree = etree.parse(name)
     except OSError as error:

@@ -529,7 +529,10 @@ def _make(name: str, config: UrbanConfig, environment_kwargs) -> DrivingEnvironm
     if config.decisions and abs(env_kwargs["control_timestep"] - period) > 1e-9:
         raise ConfigError(f"{where}: with decisions the env step is the decision period ({period:g} s); set "
                           "decision_period instead of control_timestep")
-    route = _route(name, config.map, config.opendrive, config.route_points)
+    try:
+        route = _route(name, config.map, config.opendrive, config.route_points)
+    except ConfigError as error:
+        raise ConfigError(f"{where}: {error}") from None
     composed: ComposedMap = route.composed
     kinds = counts_to_kinds(default_counts(composed) if config.road_users is None else config.road_users)
     model = world.build(route.road_map, vehicle=config.vehicle, traffic=slots(kinds), timestep=config.physics_dt)
