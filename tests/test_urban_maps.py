@@ -131,3 +131,14 @@ def test_the_autopilot_and_the_rules_drive_a_new_map(drive_episode):
     info = drive_episode(env, make_policy("rules", env), seed=3)
     assert info["success"] and not info["collision"], info
     assert UrbanMap.from_dict(SHORT_MAP).pieces() == ("crossroad", "merge")
+
+
+def test_a_car_turning_beside_the_waiting_ego_does_not_wait_for_it(drive_episode):
+    """With 3 m lanes, a car turning right into the ego's arm passes one lane width from the ego waiting at its
+    give-way line; its corridor used to catch the oncoming ego, and each waited for the other until the time
+    limit (this seed). An ego on its lanes keeps to them, as traffic does: it arrives."""
+    from tools.urban_maps import REORDERED
+
+    env = make_env("urban", "concatenated", map=REORDERED, time_limit=400.0)
+    info = drive_episode(env, make_policy("autopilot", env), seed=40002)
+    assert info["success"] and info["elapsed_time"] < 300.0, info

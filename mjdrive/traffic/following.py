@@ -111,7 +111,8 @@ def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, k
     lane_a, s_a, v_a, len_a = agents.path[:, 0], agents.s, agents.v, agents.length
     o_xy, o_yaw, o_speed, o_hl, o_hw, o_row = obstacles
     n_f, n_a, n_o, n_k = len(s), len(s_a), len(o_row), len(crossings.lane)
-    n_vehicles = len(vehicles.active)  # obstacle rows below this are the traffic's vehicles
+    n_vehicles = len(vehicles.active)  # obstacle rows below this are the traffic's vehicles (this one: the ego)
+    ego_on_lanes = agents.path[n_vehicles, 0] >= 0  # the ego is on its route's lanes
     lead_gap = np.full(n_f, INF)
     interaction = np.zeros(n_f)
     room = np.full(n_f, INF)
@@ -152,10 +153,12 @@ def gap_summary(followers, agents, obstacles, vehicles, pedestrians, slot_pos, k
             cos_d = cos_o[o] * cos_f[f] + sin_o[o] * sin_f[f]  # of the obstacle's yaw relative to the follower
             cd, sd = abs(cos_d), abs(sin_o[o] * cos_f[f] - cos_o[o] * sin_f[f])
             hl, hw = o_hl[o], o_hw[o]
-            # Under urban rules an oncoming vehicle of the traffic keeps to its own lane: the lanes that cross or merge
-            # are conflict zones (5.), so the corridor does not stop for it (two oncoming turners would wait for each
-            # other). The roundabouts of study 000 keep their rules.
-            oncoming = tables.urban and cos_d < ONCOMING_COS and o_row[o] >= 0 and o_row[o] < n_vehicles
+            # Under urban rules an oncoming vehicle of the traffic, or the ego on its lanes, keeps to its own lane: the
+            # lanes that cross or merge are conflict zones (5.), so the corridor does not stop for it (two oncoming
+            # turners would wait for each other). The ego off its lanes stays in the corridor; the roundabouts of
+            # study 000 keep their rules.
+            oncoming = tables.urban and cos_d < ONCOMING_COS and o_row[o] >= 0 and (
+                o_row[o] < n_vehicles or ego_on_lanes)
             inside = dx > 0 and dx < c.corridor_range and o_row[o] != row and not oncoming
             inside = inside and abs(dy) < (width[f] / 2 + c.corridor_margin) + sd * hl + cd * hw
             g = dx - length[f] / 2 - cd * hl - sd * hw if inside else INF
