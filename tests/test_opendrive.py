@@ -19,6 +19,7 @@ from mjdrive.config import ConfigError
 from mjdrive.envs import make_env
 from mjdrive.policies import make_policy
 from mjdrive.roads import conflict_zones
+from mjdrive.roads.conflicts import MERGE
 from mjdrive.roads.opendrive import _parse, longest_route, read_opendrive, route_between
 from mjdrive.traffic import overlapping_pairs
 from mjdrive.traffic.lanes import polyline_distance
@@ -70,7 +71,7 @@ def test_a_line_an_arc_and_a_poly3_against_the_standard(tmp_path):
     assert polyline_distance(expected, left).max() < 0.05
 
 
-@pytest.mark.parametrize("name", ["four_way", "multilane"])
+@pytest.mark.parametrize("name", ["four_way", "multilane", "roundabout"])
 def test_lanes_within_5_cm_of_the_readers_own_samples(name):
     """Every driving lane's centre line against pyxodr's lane centre sampled ten times finer (5 cm)."""
     path = MAPS_DIR / f"{name}.xodr"
@@ -113,6 +114,29 @@ def test_the_multilane_road_has_neighbours_and_a_road_link():
     assert rm.left_neighbour[right] == rm.lane_id("road0/section0/lane-1")
     assert rm.successors[right] == [rm.lane_id("road1/section0/lane-2")]
     assert len(longest_route(rm)) == 2
+
+
+def test_the_roundabout_ring_is_closed_and_every_arm_enters_and_leaves_it():
+    rm = read_opendrive(MAPS_DIR / "roundabout.xodr")
+    road = [int(lane.name.split("/")[0].removeprefix("road")) for lane in rm.lanes]  # OpenDRIVE road ids
+    arcs = {i for i in range(len(rm.lanes)) if 10 <= road[i] < 14}  # the ring's arcs
+    start = lane = rm.lane_id("road10/section0/lane-1")
+    visited = []
+    for _ in range(4):  # arc -> the way through the next junction -> the next arc
+        through = [j for j in rm.successors[lane] if any(n in arcs for n in rm.successors[j])]
+        assert len(through) == 1 and rm.lanes[through[0]].in_junction
+        lane = rm.successors[through[0]][0]
+        visited.append(lane)
+    assert visited[-1] == start and set(visited) == arcs  # around the ring and back
+    for k in range(4):
+        entry = rm.lane_id(f"road2{k}/section0/lane1")  # arm k's inbound lane
+        (connector,) = rm.successors[entry]
+        assert rm.lanes[connector].in_junction and rm.successors[connector] == [rm.lane_id(f"road1{k}/section0/lane-1")]
+        leaving = [j for j in rm.successors[rm.lane_id(f"road1{(k - 1) % 4}/section0/lane-1")]
+                   if rm.successors[j] == [rm.lane_id(f"road2{k}/section0/lane-1")]]
+        assert len(leaving) == 1  # the exit to arm k
+    zones = conflict_zones(rm)
+    assert len(zones) == 4 and (zones.kind == MERGE).all()  # each entry merges with the ring's way through
 
 
 def test_the_autopilot_crosses_an_imported_junction_in_traffic(drive_episode):

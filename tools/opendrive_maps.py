@@ -5,7 +5,9 @@ written with scenariogeneration (the dev extra), and their drawing in docs/.
 
 - four_way: a four-arm junction, one lane each way per arm (line arms), connecting roads for every movement;
 - multilane: a two-lanes-each-way road whose reference line runs through a line, a spiral, an arc, a spiral and a
-  paramPoly3, linked (a road link, no junction) to a straight road.
+  paramPoly3, linked (a road link, no junction) to a straight road;
+- roundabout: a one-lane ring of four arcs between four junctions, each with a two-way arm (written element by
+  element: entries and exits are paramPoly3 curves).
 
 The maps are the project's own (generated here, same licence as the code).
 """
@@ -49,6 +51,101 @@ def multilane(path: Path) -> None:
     _write(path, "multilane", [main, narrow], [])
 
 
+def roundabout(path: Path, radius: float = 20.0, arms: int = 4, mouth: float = 9.0, arm_length: float = 60.0,
+               half_gap: float = 0.35) -> None:
+    """A one-lane roundabout written element by element (scenariogeneration's junction builder gives no closed
+    ring): the ring is `arms` arc roads between junctions; junction k, at arm k's angle, holds the ring's way
+    through, the entry from the arm and the exit to it (paramPoly3 Hermite curves); one-way roads carry their lane's
+    centre on the reference line (laneOffset); the arms are two-way roads. Traffic circulates counter-clockwise."""
+    from lxml import etree
+
+    root = etree.Element("OpenDRIVE")
+    etree.SubElement(root, "header", revMajor="1", revMinor="6", name="roundabout")
+    w = LANE_WIDTH
+    angle = [2 * math.pi * k / arms for k in range(arms)]
+
+    def ids(k: int) -> dict[str, str]:
+        k %= arms
+        return {"ring": str(10 + k), "arm": str(20 + k), "through": str(100 + 10 * k), "entry": str(101 + 10 * k),
+                "exit": str(102 + 10 * k), "junction": str(300 + k)}
+
+    def ring_pose(a: float) -> tuple[np.ndarray, float]:
+        return radius * _unit(a), a + math.pi / 2  # on the ring's lane centre, heading counter-clockwise
+
+    def add_road(rid, length, start, hdg, shape, lanes, junction="-1", links=()):
+        road = etree.SubElement(root, "road", id=rid, length=repr(float(length)), junction=junction)
+        link = etree.SubElement(road, "link")
+        for kind, element, eid, contact in links:
+            attrs = {"elementType": element, "elementId": eid, **({"contactPoint": contact} if contact else {})}
+            etree.SubElement(link, kind, **attrs)
+        etree.SubElement(etree.SubElement(road, "type", s="0", type="town"), "speed", max="30", unit="km/h")
+        geometry = etree.SubElement(etree.SubElement(road, "planView"), "geometry", s="0", x=repr(float(start[0])),
+                                    y=repr(float(start[1])), hdg=repr(float(hdg)), length=repr(float(length)))
+        etree.SubElement(geometry, shape[0], **{key: str(value) for key, value in shape[1].items()})
+        road.append(etree.fromstring(lanes))
+
+    lane = ('<lane id="%d" type="driving" level="false">%s<width sOffset="0" a="%r" b="0" c="0" d="0"/></lane>')
+    centre = '<center><lane id="0" type="none" level="false"/></center>'
+
+    def one_way(predecessor: int) -> str:  # lane -1 with its centre on the reference line
+        link = f'<link><predecessor id="{predecessor}"/><successor id="-1"/></link>'
+        return (f'<lanes><laneOffset s="0" a="{w / 2!r}" b="0" c="0" d="0"/><laneSection s="0">{centre}'
+                f'<right>{lane % (-1, link, w)}</right></laneSection></lanes>')
+
+    two_way = (f'<lanes><laneSection s="0"><left>{lane % (1, "", w)}</left>{centre}<right>{lane % (-1, "", w)}</right>'
+               '</laneSection></lanes>')
+
+    def hermite(start, h0, end, h1):
+        """A normalized paramPoly3 from a pose to a pose (cubic Hermite, end tangents the chord's length), and its
+        length [m] (sampled)."""
+        c, s = math.cos(h0), math.sin(h0)
+        d = np.asarray(end, float) - np.asarray(start, float)
+        p1 = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]])
+        chord = float(np.hypot(*p1))
+        t0, t1 = np.array([chord, 0.0]), chord * np.array([math.cos(h1 - h0), math.sin(h1 - h0)])
+        cc, dd = 3 * p1 - 2 * t0 - t1, -2 * p1 + t0 + t1
+        p = np.linspace(0.0, 1.0, 1000)[:, None]
+        points = t0 * p + cc * p**2 + dd * p**3
+        shape = ("paramPoly3", {"aU": 0.0, "bU": t0[0], "cU": cc[0], "dU": dd[0], "aV": 0.0, "bV": t0[1],
+                                "cV": cc[1], "dV": dd[1], "pRange": "normalized"})
+        return float(np.hypot(*np.diff(points, axis=0).T).sum()), shape
+
+    for k in range(arms):
+        this, previous, following = ids(k), ids(k - 1), ids(k + 1)
+        a0 = angle[k] + half_gap
+        a1 = angle[k] + 2 * math.pi / arms - half_gap
+        start, hdg = ring_pose(a0)
+        add_road(this["ring"], radius * (a1 - a0), start, hdg, ("arc", {"curvature": 1 / radius}), one_way(-1),
+                 links=(("predecessor", "junction", this["junction"], None),
+                        ("successor", "junction", following["junction"], None)))
+        mouth_point = (radius + mouth) * _unit(angle[k])
+        left = _unit(angle[k] + math.pi / 2)
+        add_road(this["arm"], arm_length, mouth_point, angle[k], ("line", {}), two_way,
+                 links=(("predecessor", "junction", this["junction"], None),))
+        (p0, h0), (p1, h1) = ring_pose(angle[k] - half_gap), ring_pose(angle[k] + half_gap)
+        add_road(this["through"], 2 * half_gap * radius, p0, h0, ("arc", {"curvature": 1 / radius}), one_way(-1),
+                 this["junction"], (("predecessor", "road", previous["ring"], "end"),
+                                    ("successor", "road", this["ring"], "start")))
+        entry_start = mouth_point + (w / 2) * left
+        length, shape = hermite(entry_start, angle[k] + math.pi, p1, h1)
+        add_road(this["entry"], length, entry_start, angle[k] + math.pi, shape, one_way(1), this["junction"],
+                 (("predecessor", "road", this["arm"], "start"), ("successor", "road", this["ring"], "start")))
+        exit_end = mouth_point - (w / 2) * left
+        length, shape = hermite(p0, h0, exit_end, angle[k])
+        add_road(this["exit"], length, p0, h0, shape, one_way(-1), this["junction"],
+                 (("predecessor", "road", previous["ring"], "end"), ("successor", "road", this["arm"], "start")))
+    for k in range(arms):
+        this, previous = ids(k), ids(k - 1)
+        junction = etree.SubElement(root, "junction", id=this["junction"], name=f"entry{k}")
+        for n, (incoming, connecting, from_lane) in enumerate(((previous["ring"], this["through"], -1),
+                                                              (previous["ring"], this["exit"], -1),
+                                                              (this["arm"], this["entry"], 1))):
+            connection = etree.SubElement(junction, "connection", id=str(n), incomingRoad=incoming,
+                                          connectingRoad=connecting, contactPoint="start")
+            etree.SubElement(connection, "laneLink", **{"from": str(from_lane), "to": "-1"})
+    etree.ElementTree(root).write(str(path), pretty_print=True, xml_declaration=True, encoding="utf-8")
+
+
 def _unit(angle: float) -> np.ndarray:
     return np.array([math.cos(angle), math.sin(angle)])
 
@@ -65,7 +162,7 @@ def _write(path: Path, name: str, roads: list, junctions: list) -> None:
     odr.write_xml(str(path))
 
 
-MAPS = {"four_way": four_way, "multilane": multilane}
+MAPS = {"four_way": four_way, "multilane": multilane, "roundabout": roundabout}
 
 
 def draw(out: Path) -> None:

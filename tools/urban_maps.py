@@ -65,7 +65,7 @@ def maps(sweep: bool) -> list[tuple[str, str, dict | str]]:
     return out
 
 
-IMPORTED = ("four_way", "multilane")  # the shipped OpenDRIVE maps (urban/opendrive)
+IMPORTED = ("four_way", "multilane", "roundabout")  # the shipped OpenDRIVE maps (urban/opendrive)
 
 
 def check_map(task: str, value: dict | str) -> UrbanMap:

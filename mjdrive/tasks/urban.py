@@ -97,7 +97,7 @@ class UrbanConfig(DrivingConfig):
                                  "{...}, road: {...}, crossroad: {...}, merge: {...}}), or the path of a YAML or "
                                  "JSON file of them; None: the task's pieces at their defaults")
     opendrive: str | None = param(None, "urban/opendrive: the OpenDRIVE file (.xodr) to drive, or a shipped map's "
-                                  "name (four_way, multilane) (the `opendrive` extra)")
+                                  "name (four_way, multilane, roundabout) (the `opendrive` extra)")
     route_points: tuple[float, float, float, float] | None = param(
         None, "urban/opendrive: the route's start x, y and goal x, y (the nearest lanes; None: the longest route)",
         "m")
