@@ -52,6 +52,7 @@ def test_a_map_file_is_the_same_map_as_its_keywords(tmp_path):
 
 
 BAD_MAPS = [
+    ({"lane_width": 2.5}, r"lane_width=2\.5: roundabout\.lane_width=2\.5: must be >= 3"),  # the roundabout's own bound
     ({"crossroad": {"lane_width": 6.0}}, r"map\.crossroad\.lane_width=6\.0: must be >= 2\.5 and <= 5 \[m\]"),
     ({"roundabout": {"radiuss": 20}}, r"map\.roundabout: unknown keyword 'radiuss' \(did you mean 'radius'\?\)"),
     ({"order": ["crossroad", "bridge"]}, r"map\.order=.*element 'bridge' is not one of"),

@@ -33,7 +33,7 @@ REORDERED = {"order": ["crossroad", "roundabout", "road", "merge"], "lane_width"
              "merge": {"main_lanes": 2, "merge_angle": math.radians(45), "slip_radius": 30.0}}
 # (label, task, map): each piece alone on its scenario task, one parameter moved to the edges of its range
 SWEEP: list[tuple[str, str, dict]] = [
-    *[(f"roundabout lane_width {w:g} m", "roundabout", {"lane_width": w}) for w in (2.5, 5.0)],
+    *[(f"roundabout lane_width {w:g} m", "roundabout", {"lane_width": w}) for w in (3.0, 5.0)],
     ("roundabout 3 arms", "roundabout", {"roundabout": {"arms": 3, "entry_arm": 2, "exit_arm": 1}}),
     ("roundabout 5 arms", "roundabout", {"roundabout": {"arms": 5, "exit_arm": 4}}),
     ("roundabout 8 arms, radius 30 m", "roundabout", {"roundabout": {"arms": 8, "radius": 30.0, "entry_arm": 4}}),

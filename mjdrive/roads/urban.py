@@ -6,6 +6,7 @@ the route), plus the concatenated map of Fig. 8: roundabout -> two-lane road -> 
 from __future__ import annotations
 
 import bisect
+import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -218,6 +219,8 @@ def concatenated(urban_map: UrbanMap | Mapping | None = None, **keywords) -> Com
     elif not isinstance(urban_map, UrbanMap):
         check("urban_map", urban_map, isinstance(urban_map, Mapping), "an UrbanMap or a dict of its keywords")
         urban_map = UrbanMap.from_dict(urban_map)
+    if urban_map.order is None:  # all four: the map-wide lane_width checked against each
+        urban_map = dataclasses.replace(urban_map, order=urban_map.pieces())
     builders = {"roundabout": lambda: roundabout_piece(urban_map.roundabout),
                 "road": lambda: overtaking_road(urban_map.road),
                 "crossroad": lambda: crossroad(urban_map.crossroad),

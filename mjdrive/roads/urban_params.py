@@ -54,7 +54,8 @@ class RoundaboutParams(Config):
     lanes: int = param(2, "ring lanes", ge=1, le=MAX_LANES)
     arms: int = param(4, "two-way arms", ge=3, le=8)
     arm_length: float = param(50.0, "length of each arm", "m", ge=25.0, le=1000.0)
-    lane_width: float = _lane_width()
+    lane_width: float = param(3.5, "lane width (at least 3 m: an entering and a leaving car pass side by side on the "
+                              "arm's curved connectors)", "m", ge=3.0, le=LANE_WIDTH_RANGE[1])
     speed_limit: float = _speed_limit(30 / 3.6)
     crosswalk_offset: float = param(6.0, "crosswalk from the arm's start", "m", ge=0.0)
     entry_arm: int = param(2, "the ego arrives on this arm", ge=0)
@@ -172,7 +173,13 @@ class UrbanMap(Config):
             piece = getattr(self, name)
             check(f"{name}.lane_width", piece.lane_width, piece.lane_width in (default, self.lane_width),
                   f"the map's lane_width ({self.lane_width:g} m) or left out when the map sets it")
-            object.__setattr__(self, name, dataclasses.replace(piece, lane_width=self.lane_width))
+            if self.order is not None and name not in self.order:  # a piece left out of the map keeps its own
+                continue
+            try:
+                object.__setattr__(self, name, dataclasses.replace(piece, lane_width=self.lane_width))
+            except ConfigError as error:
+                if self.order is not None:  # (order None: checked once the task's pieces are known)
+                    raise ConfigError(f"lane_width={self.lane_width:g}: {name}.{error}") from None
 
     def pieces(self, default: tuple[str, ...] = PIECE_NAMES) -> tuple[str, ...]:
         """`order`, or `default` where it is None."""
