@@ -15,15 +15,27 @@ a site install) and compile them again in every process.
 
 from __future__ import annotations
 
+import hashlib
 import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
 
 
+def source_digest() -> str:
+    """A digest of the package's Python sources. numba invalidates a cached kernel when its own module changes, not
+    when a helper it inlines from another module does; a cache directory per source digest never serves a kernel
+    compiled from older code (an edit costs one recompilation)."""
+    digest = hashlib.sha1()
+    for path in sorted(Path(__file__).resolve().parent.rglob("*.py")):
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:12]
+
+
 def numba_cache_dir() -> Path:
-    """NUMBA_CACHE_DIR, set to ~/.cache/mjdrive/numba (under XDG_CACHE_HOME where set) unless already set."""
-    default = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "mjdrive" / "numba"
+    """NUMBA_CACHE_DIR, set to ~/.cache/mjdrive/numba/SOURCE_DIGEST (under XDG_CACHE_HOME where set) unless already
+    set."""
+    default = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "mjdrive" / "numba" / source_digest()
     return Path(os.environ.setdefault("NUMBA_CACHE_DIR", str(default)))
 
 

@@ -229,6 +229,7 @@ def zone_stops(followers, agents, vehicles, approaches, slot_pos, c, control):
     ap_timed, ap_yields, ap_tie, ap_merge, ap_courtesy = ap.timed, ap.yields, ap.tie, ap.merge, ap.courtesy
     s_a, v_a, len_a, offset_a = agents.s, agents.v, agents.length, agents.offset
     rows, courteous_f, slot = followers.row, followers.courteous, vehicles.slot
+    n_vehicles = len(vehicles.v)  # the ego's agent row
     n_f, n_r = len(rows), len(ap_lane)
     start = np.zeros(n_f + 1, dtype=np.int64)
     for f in range(n_f):
@@ -287,7 +288,9 @@ def zone_stops(followers, agents, vehicles, approaches, slot_pos, c, control):
                     longer = waited_a[a] > waited or (waited_a[a] == waited and a < row)
                     if t_line[a, r] < t_line_me or (t_line[a, r] == t_line_me and longer):
                         first = True
-            claimed = claimed_any and not yields and not tie and can_stop(v_me, me_stop)
+            # The ego does not stop for a claim either: a claimant does not count on it (it would wait for the ego
+            # standing at its line, which waited for the claim)
+            claimed = claimed_any and not yields and not tie and can_stop(v_me, me_stop) and row != n_vehicles
             for j in changing:  # a vehicle moving over between lanes is on neither lane's path near the zone:
                 if j != row and np.hypot(slot_pos[slot[j], 0] - ap_point[r, 0],  # judge it by distance
                                          slot_pos[slot[j], 1] - ap_point[r, 1]) < CHANGING_RADIUS:
