@@ -32,6 +32,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int_at_least(1), default=3, help="traffic seeds 0..N-1 per control")
     parser.add_argument("--episodes", type=int_at_least(1), default=100, help="ego episodes per control and driver")
     parser.add_argument("--seed", type=int_at_least(0), default=50000, help="seed of the first ego episode")
+    parser.add_argument("--time-limit", type=positive_float, default=120.0,
+                        help="the ego's episodes' time limit [s] (urban/crossroad's default, 90 s, is set for "
+                        "give-way; a stop sign adds a full stop and a new start)")
     parser.add_argument("--workers", type=int_at_least(0), default=0, metavar="N")
     parser.add_argument("--out", default=None, help="write the markdown report here")
     args = parser.parse_args(argv)
@@ -41,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     lines = [
         "# Junction control at the crossroad: give-way, stop signs, traffic lights", "",
         f"`python -m tools.junction_control --minutes {args.minutes:g} --seeds {args.seeds} --episodes "
-        f"{args.episodes}`. Study 002's crossroad (`urban/crossroad`: the minor road, the ego's approach and the arm "
+        f"{args.episodes} --time-limit {args.time_limit:g}`. Study 002's crossroad (`urban/crossroad`: the minor road, the ego's approach and the arm "
         "across, meets the main road), its default traffic (8 cars, 2 motorcycles), `junction_control` = give_way "
         "(the conflict zones' right of way alone), stop (stop signs on the minor road: come to rest at the line, "
         f"then give way) or lights (main green {timing.green_main:g} s, amber {timing.amber:g} s, all red "
@@ -70,7 +73,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"traffic, {control}: violations {red} + {stop}, overlaps {overlaps} "
               f"({time.perf_counter() - start:.0f} s)", file=sys.stderr, flush=True)
     lines += ["", f"## The ego on urban/crossroad: {args.episodes} episodes per control and driver (seeds "
-              f"{args.seed}-{args.seed + args.episodes - 1})", "",
+              f"{args.seed}-{args.seed + args.episodes - 1}, {args.time_limit:g} s limit)", "",
               "An episode ends on a violation (the ego's front bumper 0.5 m past a line showing red, or past a stop "
               "sign's line without having come to rest within 5 m of it: `info['violation']`, the summary's `end`). "
               "Time: mean over the successful episodes.", "",
@@ -79,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     for control in CONTROLS:
         for driver in ("autopilot", "always_go"):
             rows = run_episodes("crossroad", driver, args.episodes, args.seed, args.workers,
-                                task_kwargs={"junction_control": control})
+                                task_kwargs={"junction_control": control, "time_limit": args.time_limit})
             ends = [r["end"] for r in rows]
             times = [r["time"] for r in rows if r["end"] == "success"]
             success = 100.0 * ends.count("success") / len(ends)
