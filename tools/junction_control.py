@@ -44,8 +44,9 @@ def main(argv: list[str] | None = None) -> int:
     lines = [
         "# Junction control at the crossroad: give-way, stop signs, traffic lights", "",
         f"`python -m tools.junction_control --minutes {args.minutes:g} --seeds {args.seeds} --episodes "
-        f"{args.episodes} --time-limit {args.time_limit:g}`. Study 002's crossroad (`urban/crossroad`: the minor road, the ego's approach and the arm "
-        "across, meets the main road), its default traffic (8 cars, 2 motorcycles), `junction_control` = give_way "
+        f"{args.episodes} --time-limit {args.time_limit:g}`. Study 002's crossroad (`urban/crossroad`: the minor road, "
+        "the ego's approach and the arm across, meets the main road), its default traffic (8 cars, 2 motorcycles), "
+        "`junction_control` = give_way "
         "(the conflict zones' right of way alone), stop (stop signs on the minor road: come to rest at the line, "
         f"then give way) or lights (main green {timing.green_main:g} s, amber {timing.amber:g} s, all red "
         f"{timing.all_red:g} s, minor green {timing.green_minor:g} s, amber, all red: a {timing.cycle:g} s cycle; "
