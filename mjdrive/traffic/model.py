@@ -147,6 +147,8 @@ class Traffic:
         self.stats = {"spawned": 0, "despawned": 0, "lane_changes": 0, "red_light_violations": 0,
                       "stop_sign_violations": 0}
         self.junctions = jc.Junctions.of(m.road_map)  # junction entries; give-way until `set_junction_control`
+        self._no_control = np.full(self.nv + 1, np.inf)  # (A,) no junction-control line for anyone (read only)
+        self._no_control.flags.writeable = False
         self.generation = np.zeros(self.n, dtype=np.int64)  # per slot: +1 each time a road user (re)enters
         self.ego: EgoState | None = None
         self.rng = np.random.default_rng(0)
@@ -406,7 +408,7 @@ class Traffic:
     def _control_gaps(self, agents: Agents) -> np.ndarray:
         """(A,) [m] to the junction-control line each agent (the vehicles, the ego) must stop at now (inf: none)."""
         if not self.junctions.active:
-            return np.full(len(agents.s), np.inf)
+            return self._no_control
         gaps = jc.line_gaps(self.junctions, agents.offset, agents.s, agents.length)
         return jc.stop_gaps(self.junctions, self.entry_state, gaps, agents.v, np.append(self.halted, self.ego_halted))
 
