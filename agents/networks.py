@@ -36,16 +36,21 @@ class StudyCNN(nn.Module):
     (84 -> 40 -> 18 -> 7 with 5x5 stride 2, no padding); only the channel counts differ. We follow the text,
     channels (16, 16, 64), so h_t has 64 entries and [h_t, dest_t] 66; pass channels=(16, 64, 256) for the
     figure's version. `pool="none"` flattens the last feature map instead (keeps where things are in the
-    image, which a waypoint-following camera agent needs) and projects it to `out_dim`.
+    image, which a waypoint-following camera agent needs) and projects it to `out_dim`. `kernel` and `stride`
+    are one size for every layer or one per layer (e.g. the Nature DQN's [8, 4, 3] and [4, 2, 1]).
     """
 
     def __init__(self, in_shape: tuple[int, int, int], channels: tuple[int, ...] = (16, 16, 64),
-                 kernel: int = 5, stride: int = 2, pool: str = "avg", out_dim: int = 256):
+                 kernel: int | list[int] = 5, stride: int | list[int] = 2, pool: str = "avg", out_dim: int = 256):
         super().__init__()
+        kernels = list(kernel) if isinstance(kernel, (list, tuple)) else [kernel] * len(channels)
+        strides = list(stride) if isinstance(stride, (list, tuple)) else [stride] * len(channels)
+        if len(kernels) != len(channels) or len(strides) != len(channels):
+            raise ValueError(f"cnn: kernel {kernel} and stride {stride} need one entry per channel count {channels}")
         layers: list[nn.Module] = []
         c = in_shape[0]
-        for width in channels:
-            layers += [nn.Conv2d(c, width, kernel, stride), nn.ReLU()]
+        for width, size, step in zip(channels, kernels, strides, strict=True):
+            layers += [nn.Conv2d(c, width, size, step), nn.ReLU()]
             c = width
         if pool == "avg":
             layers += [nn.AdaptiveAvgPool2d(1), nn.Flatten()]

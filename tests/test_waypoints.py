@@ -138,3 +138,26 @@ def test_camera_image_depends_on_the_state_alone():
         images.append(observation["image"].copy())
         env.reset()  # another route, hundreds of metres away
     assert all(np.array_equal(images[0], image) for image in images[1:])
+
+
+@pytest.mark.parametrize("capped", [False, True])
+def test_features_reward_pays_for_speed_above_the_limit_only_without_the_cap(capped):
+    env = make_env("waypoints", "straight", speed_limit_reward=capped, start_noise=(0.0, 0.0))
+    task = env.unwrapped.task
+    policy = pure_pursuit_policy(env, cruise=12.0)  # [m/s] above the 30 km/h limit
+    observation, _ = env.reset(seed=0)
+    limit = task.road_map.lanes[task.route[0]].speed_limit * 3.6  # [km/h]
+    seen = {"below": 0, "above": 0}
+    for _ in range(120):
+        observation, reward, terminated, truncated, info = env.step(policy(observation))
+        v, theta = task.speed * 3.6, task.heading_error
+        speed_term = task.reward_terms["speed"]
+        if v < limit:
+            seen["below"] += 1
+            assert speed_term == pytest.approx(abs(v * np.cos(theta)) - abs(v * np.sin(theta)))
+        else:
+            seen["above"] += 1
+            assert speed_term == pytest.approx(-v if capped else abs(v * np.cos(theta)) - abs(v * np.sin(theta)))
+        if terminated or truncated:
+            break
+    assert seen["below"] > 0 and seen["above"] > 0, seen

@@ -2,6 +2,9 @@
 frame frozen; the scalar observations (d, θ, v or the destination) are left as they are.
 
     python -m tools.ablate_image results/checkpoints/ppo_camera_straight.pt --episodes 1
+    python -m tools.ablate_image results/checkpoints/dqn_camera_four_routes.pt --episodes 50 --summary
+
+Prints a row per episode, or with --summary a row per image mode (mean and least route completion, arrivals).
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--task", default=None, help="DOMAIN/TASK (default: the checkpoint's)")
     parser.add_argument("--episodes", type=int_at_least(1), default=1)
     parser.add_argument("--seed", type=int_at_least(0), default=10_000)
+    parser.add_argument("--summary", action="store_true", help="one row per image mode instead of per episode")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     agent, payload = load_agent(args.checkpoint)
@@ -34,8 +38,14 @@ def main(argv: list[str] | None = None) -> int:
     key = ObservationLayout(env.observation_space).image_key
     if key is None:
         raise SystemExit("this agent has no image observation")
-    print("| image | episode | steps | route completion | success |\n| --- | ---: | ---: | ---: | --- |")
+    if args.summary:
+        last = args.seed + args.episodes - 1
+        print(f"{args.episodes} greedy episodes on {domain}/{task}, seeds {args.seed}-{last}\n")
+        print("| image | mean route completion | min | success % |\n| --- | ---: | ---: | ---: |")
+    else:
+        print("| image | episode | steps | route completion | success |\n| --- | ---: | ---: | ---: | --- |")
     for mode in ("real", "black", "frozen first frame"):
+        completions, successes = [], []
         for episode in range(args.episodes):
             obs, info = env.reset(seed=args.seed + episode)
             first, steps = obs[key].copy(), 0
@@ -50,8 +60,13 @@ def main(argv: list[str] | None = None) -> int:
                 steps += 1
                 if terminated or truncated:
                     break
-            print(f"| {mode} | {episode} | {steps} | {100 * info.get('route_completion', np.nan):.1f}% "
-                  f"| {info.get('success')} |")
+            completions.append(100 * info.get("route_completion", np.nan))
+            successes.append(bool(info.get("success")))
+            if not args.summary:
+                print(f"| {mode} | {episode} | {steps} | {completions[-1]:.1f}% | {successes[-1]} |")
+        if args.summary:
+            print(f"| {mode} | {np.mean(completions):.1f}% | {np.min(completions):.1f}% | "
+                  f"{100 * np.mean(successes):.0f} |", flush=True)
     env.close()
     return 0
 
