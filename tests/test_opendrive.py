@@ -19,8 +19,10 @@ from mjdrive.config import ConfigError
 from mjdrive.envs import make_env
 from mjdrive.policies import make_policy
 from mjdrive.roads import conflict_zones
-from mjdrive.roads.conflicts import MERGE
+from mjdrive.roads.conflicts import MERGE, TIE, YIELD_A, YIELD_B
+from mjdrive.roads.geometry import wrap_angle
 from mjdrive.roads.opendrive import _parse, longest_route, read_opendrive, route_between
+from mjdrive.roads.roadmap import MAIN_ROAD, MINOR_ROAD
 from mjdrive.traffic import overlapping_pairs
 from mjdrive.traffic.lanes import polyline_distance
 
@@ -188,3 +190,61 @@ def test_the_cli_reports_a_bad_opendrive_file_in_one_line(tmp_path):
     assert result.returncode == 2 and "Traceback" not in result.stderr and "not an XML file" in lines[-1], lines
     with pytest.raises(ConfigError, match="only urban/opendrive takes it"):
         make_env("urban", "crossroad", opendrive="four_way")
+
+
+def _ranked_four_way(tmp_path) -> str:
+    """The shipped four-way junction with its roads ranked: 0 and 2 (east-west) the main road, 1 and 3 minor."""
+    tree = etree.parse(str(MAPS_DIR / "four_way.xodr"))
+    (junction,) = tree.getroot().iter("junction")
+    for high in ("0", "2"):
+        for low in ("1", "3"):
+            etree.SubElement(junction, "priority", high=high, low=low)
+    path = tmp_path / "ranked.xodr"
+    tree.write(str(path))
+    return str(path)
+
+
+def _road_id(rm, lane: int) -> str:
+    return rm.lanes[lane].name.split("/")[0].removeprefix("road")
+
+
+def test_junction_priorities_rank_the_main_road_and_put_give_way_lines_on_the_minor_one(tmp_path):
+    plain = read_opendrive(MAPS_DIR / "four_way.xodr")
+    assert (conflict_zones(plain).who_yields == TIE).all() and not plain.give_way and not plain.junction_entries
+    rm = read_opendrive(_ranked_four_way(tmp_path))
+    incoming = [i for i, lane in enumerate(rm.lanes) if not lane.in_junction and rm.successors[i]]
+    minor = [i for i in incoming if _road_id(rm, i) in ("1", "3")]
+    assert sorted(rm.give_way) == sorted((i, rm.lanes[i].length) for i in minor)  # the line at the mouth
+    assert sorted(rm.junction_entries) == sorted((i, MINOR_ROAD if i in minor else MAIN_ROAD) for i in incoming)
+    zones = conflict_zones(rm)
+    source = {j: _road_id(rm, rm.predecessors(j)[0]) for j, lane in enumerate(rm.lanes) if lane.in_junction}
+    checked = 0
+    for a, b, who in zip(zones.lane_a, zones.lane_b, zones.who_yields, strict=True):
+        main_a, main_b = source[a] in ("0", "2"), source[b] in ("0", "2")
+        if main_a != main_b:  # a main-road movement against a minor-road one: the minor one yields
+            assert who == (YIELD_B if main_a else YIELD_A)
+            checked += 1
+    assert checked > 0
+    left = [j for j in source if source[j] in ("0", "2") and wrap_angle(
+        rm.lanes[j].vertex_heading[-1] - rm.lanes[j].vertex_heading[0]) > 0.5]
+    straight = [j for j in source if source[j] in ("0", "2") and j not in left and abs(wrap_angle(
+        rm.lanes[j].vertex_heading[-1] - rm.lanes[j].vertex_heading[0])) < 0.1]
+    assert left and straight and max(rm.lanes[j].priority for j in left) < min(rm.lanes[j].priority for j in straight)
+
+
+def test_stop_signs_on_an_imported_junction_hold_traffic_and_the_autopilot(tmp_path, drive_episode):
+    env = make_env("urban", "opendrive", opendrive=_ranked_four_way(tmp_path), junction_control="stop")
+    info = drive_episode(env, make_policy("autopilot", env), seed=0)
+    assert info["success"] and not info["collision"] and not info.get("violation"), info
+    traffic = env.unwrapped.task.traffic
+    overlaps, passed, before = 0, 0, traffic.vehicles.path[:, 0].copy()
+    minor = set(traffic.junctions.lane[traffic.junctions.group == MINOR_ROAD].tolist())
+    for _ in range(int(180.0 / traffic.config.substep)):  # three minutes of its traffic alone
+        traffic.advance(traffic.config.substep)
+        present = traffic.present
+        overlaps += len(overlapping_pairs(traffic.poses()[present], traffic.half_size[present])) > 0
+        now = np.where(traffic.vehicles.active, traffic.vehicles.path[:, 0], -1)
+        passed += int(sum(((before == lane) & (now != lane) & (now >= 0)).sum() for lane in minor))
+        before = now
+    assert overlaps == 0 and traffic.stats["stop_sign_violations"] == 0
+    assert passed >= 3  # the minor road still flows through its stop signs

@@ -5,8 +5,11 @@ and lane widths, and links lanes through road links and junction connections; th
 into `Lane`s (centre lines in the direction of travel, mean width, the road's speed limit, in_junction for a
 junction's connecting roads), the lane graph (successors, same-direction neighbours), a paved area per junction, and
 finds routes between two points (Dijkstra over the lane graph). Conflict zones come from the map as for any other
-(`roads.conflict_zones`); a junction's lanes all have the same rank (first come, first served) unless the file says
-otherwise.
+(`roads.conflict_zones`). A junction's lanes all have the same rank (first come, first served) unless the file ranks
+its roads (`<junction><priority high="ROAD" low="ROAD"/>`): then a connecting lane takes its incoming road's rank
+(a road named low anywhere in the junction is the minor road, one named only high the main road), a left turn one
+step lower, as on the crossroad piece; the minor roads' lanes give way at the junction's mouth, and every entry
+lane is a junction entry of its road's group (stop signs and traffic lights, `junction_control`, apply).
 
     rm = read_opendrive("town.xodr")
     route = route_between(rm, (x0, y0), (x1, y1))   # lane ids
@@ -28,9 +31,11 @@ from collections.abc import Sequence
 import numpy as np
 
 from mjdrive.config import ConfigError
-from mjdrive.roads.geometry import convex_hull
+from mjdrive.roads.geometry import convex_hull, wrap_angle
 from mjdrive.roads.lane import Lane, Marking, resample
-from mjdrive.roads.roadmap import RoadMap
+from mjdrive.roads.pieces import STRAIGHT_TOLERANCE
+from mjdrive.roads.roadmap import MAIN_ROAD, MINOR_ROAD, RoadMap
+from mjdrive.roads.urban_pieces import PRIORITY_MAJOR, PRIORITY_MINOR, YIELD_STEP
 
 SPEED_UNITS = {"m/s": 1.0, "km/h": 1 / 3.6, "mph": 0.44704}  # OpenDRIVE's speed units, to m/s
 DEFAULT_SPEED = 50 / 3.6  # [m/s] a road without a speed record
@@ -93,6 +98,45 @@ def _speed_limit(road_xml) -> float:
     return DEFAULT_SPEED
 
 
+def _road_ranks(root) -> dict[str, dict[str, int]]:
+    """Junction id -> {road id: PRIORITY_MAJOR or PRIORITY_MINOR} from the junctions' <priority high low> records."""
+    ranks: dict[str, dict[str, int]] = {}
+    for junction in root.iter("junction"):
+        pairs = [(record.get("high"), record.get("low")) for record in junction.iter("priority")]
+        if not pairs:
+            continue
+        low = {b for _, b in pairs if b is not None}
+        ranks[junction.get("id")] = {road: PRIORITY_MINOR if road in low else PRIORITY_MAJOR
+                                     for pair in pairs for road in pair if road is not None}
+    return ranks
+
+
+def _apply_ranks(rm: RoadMap, ranks: dict[str, dict[str, int]], road_of: dict[int, str],
+                 junction_of: dict[int, str]) -> None:
+    """Right of way from the junctions' road ranks (module docstring): lane priorities, give-way lines at the minor
+    roads' mouths, junction entries."""
+    for index, lane in enumerate(rm.lanes):
+        if lane.in_junction or index not in road_of:
+            continue
+        entered = {junction_of[j] for j in rm.successors[index] if j in junction_of}
+        for junction in entered & ranks.keys():
+            rank = ranks[junction].get(road_of[index])
+            if rank is None:
+                continue
+            lane.priority = rank
+            rm.junction_entries.append((index, MAIN_ROAD if rank == PRIORITY_MAJOR else MINOR_ROAD))
+            if rank == PRIORITY_MINOR:
+                rm.give_way.append((index, lane.length))
+    for index, junction in junction_of.items():
+        sources = [road_of[j] for j in rm.predecessors(index) if j in road_of]
+        rank = ranks.get(junction, {}).get(sources[0]) if sources else None
+        if rank is None:
+            continue
+        lane = rm.lanes[index]
+        turn = float(wrap_angle(lane.vertex_heading[-1] - lane.vertex_heading[0]))
+        lane.priority = rank - (YIELD_STEP if turn > STRAIGHT_TOLERANCE else 0)
+
+
 def read_opendrive(path: str | os.PathLike, name: str | None = None) -> RoadMap:
     """The driving lanes of an OpenDRIVE file as a RoadMap (module docstring). ConfigError for a file that cannot be
     read, is not OpenDRIVE, uses what pyxodr does not support, or has no driving lane."""
@@ -115,6 +159,7 @@ def read_opendrive(path: str | os.PathLike, name: str | None = None) -> RoadMap:
     ids: dict[int, int] = {}
     by_section: dict[tuple[str, int], dict[int, int]] = {}
     junctions: dict[str, list[int]] = {}  # OpenDRIVE junction id -> its lanes
+    road_of: dict[int, str] = {}  # our lane -> its OpenDRIVE road id
     for road, k, lane in lanes:
         centre = resample(flows[id(lane)], LANE_STEP)
         length = float(np.hypot(*np.diff(centre, axis=0).T).sum()) if len(centre) > 1 else 0.0
@@ -128,6 +173,7 @@ def read_opendrive(path: str | os.PathLike, name: str | None = None) -> RoadMap:
         index = rm.add_lane(Lane(centre, width, marking, marking, _speed_limit(road.road_xml),
                                  f"road{road.id}/section{k}/lane{lane.id}", inside))
         ids[id(lane)] = index
+        road_of[index] = str(road.id)
         by_section.setdefault((road.id, k), {})[lane.id] = index
         if inside:
             junctions.setdefault(junction, []).append(index)
@@ -148,6 +194,8 @@ def read_opendrive(path: str | os.PathLike, name: str | None = None) -> RoadMap:
         strips = [np.vstack([lane.centre + lane.normals * lane.width / 2, lane.centre - lane.normals * lane.width / 2])
                   for lane in (rm.lanes[i] for i in group)]
         rm.add_area(convex_hull(np.vstack(strips)))
+    junction_of = {index: junction for junction, group in junctions.items() for index in group}
+    _apply_ranks(rm, _road_ranks(tree.getroot()), road_of, junction_of)
     return rm.freeze()
 
 
