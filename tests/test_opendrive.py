@@ -139,6 +139,8 @@ def test_the_roundabout_ring_is_closed_and_every_arm_enters_and_leaves_it():
         assert len(leaving) == 1  # the exit to arm k
     zones = conflict_zones(rm)
     assert len(zones) == 4 and (zones.kind == MERGE).all()  # each entry merges with the ring's way through
+    entries = {rm.successors[rm.lane_id(f"road2{k}/section0/lane1")][0] for k in range(4)}
+    assert set(zones.yielding_lane.tolist()) == entries  # the file ranks the ring over the arms
 
 
 def test_the_autopilot_crosses_an_imported_junction_in_traffic(drive_episode):

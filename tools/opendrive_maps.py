@@ -7,7 +7,7 @@ written with scenariogeneration (the dev extra), and their drawing in docs/.
 - multilane: a two-lanes-each-way road whose reference line runs through a line, a spiral, an arc, a spiral and a
   paramPoly3, linked (a road link, no junction) to a straight road;
 - roundabout: a one-lane ring of four arcs between four junctions, each with a two-way arm (written element by
-  element: entries and exits are paramPoly3 curves).
+  element: entries and exits are paramPoly3 curves); each junction ranks the ring over the arm (<priority>).
 
 The maps are the project's own (generated here, same licence as the code).
 """
@@ -143,6 +143,7 @@ def roundabout(path: Path, radius: float = 20.0, arms: int = 4, mouth: float = 9
             connection = etree.SubElement(junction, "connection", id=str(n), incomingRoad=incoming,
                                           connectingRoad=connecting, contactPoint="start")
             etree.SubElement(connection, "laneLink", **{"from": str(from_lane), "to": "-1"})
+        etree.SubElement(junction, "priority", high=previous["ring"], low=this["arm"])  # the ring has the way
     etree.ElementTree(root).write(str(path), pretty_print=True, xml_declaration=True, encoding="utf-8")
 
 

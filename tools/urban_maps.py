@@ -156,8 +156,9 @@ def imported_report(args) -> str:
     lines = ["# OpenDRIVE maps: traffic and the autopilot", "",
              f"`python -m tools.urban_maps --opendrive --episodes {args.episodes} --minutes {args.minutes:g} --seeds "
              f"{args.seeds}`. The maps shipped in mjdrive/maps (written by `python -m tools.opendrive_maps`, drawn in "
-             "docs/opendrive_maps.png), read by pyxodr into lanes, the lane graph and conflict zones (every junction "
-             "lane of the same rank: first come, first served); `urban/opendrive` drives the longest route across "
+             "docs/opendrive_maps.png), read by pyxodr into lanes, the lane graph and conflict zones (right of way "
+             "from the junctions' priority records: the roundabout's ring over its arms; four_way has none, first "
+             "come, first served); `urban/opendrive` drives the longest route across "
              f"each with its default traffic (1 car per 60 m of lane). Traffic alone {args.minutes:g} simulated "
              f"minutes on each of seeds 0-{args.seeds - 1}; the autopilot on {args.episodes} episodes (seeds "
              f"{args.seed}-{args.seed + args.episodes - 1}, 300 s limit).", "",
