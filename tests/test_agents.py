@@ -629,3 +629,23 @@ def test_roundabout_table3_scores_every_density_with_task_kwargs_over_the_checkp
     report = out.with_suffix(".md").read_text()
     assert "| SACx2 | d120 |" in report and "an ensemble of 2, rule 'min_pedal', of `" in report
     assert f"`{run / 'checkpoint.pt'}` (sac, 64 steps)" in report
+
+
+def test_the_cnn_takes_a_kernel_and_stride_per_layer_and_a_downsample():
+    """The Nature DQN's layers on a 128 px image averaged to 64 px: 64 -> 15 -> 6 -> 4 pixels, 64 channels."""
+    from mjdrive.agents.networks import StudyCNN
+
+    cnn = StudyCNN((3, 128, 128), (32, 64, 64), kernel=[8, 4, 3], stride=[4, 2, 1], pool="none", out_dim=32,
+                   downsample=2)
+    convs = [m for m in cnn.net if isinstance(m, torch.nn.Conv2d)]
+    assert [c.kernel_size for c in convs] == [(8, 8), (4, 4), (3, 3)] and [c.stride for c in convs] == [
+        (4, 4), (2, 2), (1, 1)]
+    linear = next(m for m in cnn.net if isinstance(m, torch.nn.Linear))
+    assert linear.in_features == 64 * 4 * 4 and cnn(torch.zeros(2, 3, 128, 128)).shape == (2, 32)
+    image = torch.zeros(1, 3, 128, 128)
+    image[..., :2, :2] = 255.0  # one 2x2 block: after averaging, exactly one 64 px pixel changes
+    assert torch.equal(cnn.net[0](image / 255.0)[..., 0, 0], torch.ones(1, 3))
+    with pytest.raises(ValueError, match="one entry per channel count"):
+        StudyCNN((3, 64, 64), (32, 64), kernel=[8, 4, 3])
+    with pytest.raises(ValueError, match="downsample"):
+        StudyCNN((3, 64, 64), downsample=0)
