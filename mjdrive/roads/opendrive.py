@@ -31,11 +31,10 @@ from collections.abc import Sequence
 import numpy as np
 
 from mjdrive.config import ConfigError
-from mjdrive.roads.geometry import convex_hull, wrap_angle
+from mjdrive.roads.geometry import convex_hull
 from mjdrive.roads.lane import Lane, Marking, resample
-from mjdrive.roads.pieces import STRAIGHT_TOLERANCE
 from mjdrive.roads.roadmap import MAIN_ROAD, MINOR_ROAD, RoadMap
-from mjdrive.roads.urban_pieces import PRIORITY_MAJOR, PRIORITY_MINOR, YIELD_STEP
+from mjdrive.roads.urban_pieces import PRIORITY_MAJOR, PRIORITY_MINOR, connector_priority
 
 SPEED_UNITS = {"m/s": 1.0, "km/h": 1 / 3.6, "mph": 0.44704}  # OpenDRIVE's speed units, to m/s
 DEFAULT_SPEED = 50 / 3.6  # [m/s] a road without a speed record
@@ -132,9 +131,7 @@ def _apply_ranks(rm: RoadMap, ranks: dict[str, dict[str, int]], road_of: dict[in
         rank = ranks.get(junction, {}).get(sources[0]) if sources else None
         if rank is None:
             continue
-        lane = rm.lanes[index]
-        turn = float(wrap_angle(lane.vertex_heading[-1] - lane.vertex_heading[0]))
-        lane.priority = rank - (YIELD_STEP if turn > STRAIGHT_TOLERANCE else 0)
+        rm.lanes[index].priority = connector_priority(rm.lanes[index], rank)
 
 
 def read_opendrive(path: str | os.PathLike, name: str | None = None) -> RoadMap:

@@ -39,6 +39,13 @@ MIN_TURN_RADIUS = 6.0  # [m] the merge's right turn from the main road into the 
 MIN_SECTION = 5.0  # [m] shortest main-road section before that turn
 
 
+def connector_priority(lane: Lane, incoming: int) -> int:
+    """The rank of a junction's connecting lane from its incoming road's rank: a left turn one step lower (it yields to
+    the traffic it crosses)."""
+    turn = float(wrap_angle(lane.vertex_heading[-1] - lane.vertex_heading[0]))
+    return incoming - (YIELD_STEP if turn > STRAIGHT_TOLERANCE else 0)
+
+
 def _set_priority(rm: RoadMap, ids, priority: int) -> None:
     for i in ids:
         rm.lanes[i].priority = priority
@@ -199,10 +206,7 @@ def crossroad(params: CrossroadParams | None = None, **kwargs) -> Piece:
         for side in (-1.0, 1.0):
             mouths.append(centre + reach * unit(angle) + side * lanes * w * left_normal(angle))
     for i in add_connectors(rm, arms):
-        lane = rm.lanes[i]
-        src = rm.predecessors(i)[0]
-        turn = float(wrap_angle(lane.vertex_heading[-1] - lane.vertex_heading[0]))
-        rm.lanes[i].priority = rm.lanes[src].priority - (YIELD_STEP if turn > STRAIGHT_TOLERANCE else 0)
+        rm.lanes[i].priority = connector_priority(rm.lanes[i], rm.lanes[rm.predecessors(i)[0]].priority)
     rm.add_area(convex_hull(np.array(mouths)))
     k = 0 if p.turn == "left" else p.minor_lanes - 1
     via = (rm.lane_id(f"approach->{p.turn}_{k}"),)
