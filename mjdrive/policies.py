@@ -87,18 +87,13 @@ def decision_task(env: gym.Env, policy: str):
     return task
 
 
-# The rule-based lane changes (privileged: ground truth of the lanes beside the ego).
-OVERTAKE_RANGE = 40.0  # [m] a leader nearer than this that is slower than the ego wants to drive is overtaken
-OVERTAKE_MARGIN = 2.0  # [m/s] ... by at least this much
-OVERTAKE_ROOM = 120.0  # [m] ... where the left lane goes on at least this far (out, past, and back)
 COMMITTED = 0.3  # [m] a stop that cannot end within this past the give-way line is not made: the ego goes on
 
 
 def rules_policy(env: gym.Env) -> Policy:
     """Rule-based decisions from ground truth (privileged): at the roundabout, the crossroad and the merge, stop
     while the urban right-of-way rules (the conflict zones every vehicle obeys, `Traffic.give_way`) make the ego
-    wait, else drive; on the two-lane road, overtake a slower leader when the left lane has room ahead and behind
-    and goes on far enough (`RouteTraffic.lane_free`), and come back once the right lane has room."""
+    wait, else drive; on the two-lane road, the privileged overtaking rule (`RouteTraffic.overtaking`)."""
     task = decision_task(env, "rules")
     physics = env.unwrapped.dm_env.physics
     names = task.decisions
@@ -116,20 +111,11 @@ def rules_policy(env: gym.Env) -> Policy:
             return index["stop" if wait else "drive"]
         if scenario != "lane_change":
             return 0  # follow the path: any action
-        keep = index.get("keep", index.get("drive"))
         route = task.route_traffic
         route.observe(task.route_s, task.traffic, track=False)
-        target, width = task.operative.lanes()[-1], route.lane_width[route.route_index(task.route_s)]
-        speed, wanted = task.speed, task.operative.profile.speed(task.route_s)
-        ahead, v_ahead, _, _ = route.lane_gaps(0.0)
-        slow = ahead < OVERTAKE_RANGE and v_ahead < wanted - OVERTAKE_MARGIN  # a slow road user ahead on the right
-        if target == 0.0:  # in the route's lane: overtake it
-            left_ahead, v_left, _, _ = route.lane_gaps(width)
-            faster = left_ahead > OVERTAKE_RANGE or v_left > v_ahead + OVERTAKE_MARGIN
-            room = route.lane_length_left(task.route_s) >= OVERTAKE_ROOM
-            return index["left"] if slow and faster and room and route.lane_free(width, speed) else keep
-        # in the left lane: back once past the slow road users, when the right lane has room
-        return index["right"] if not slow and route.lane_free(0.0, speed) else keep
+        choice = route.overtaking(task.route_s, task.speed, task.operative.profile.speed(task.route_s),
+                                  task.operative.lanes()[-1])
+        return index.get(choice, index.get("keep", index.get("drive")))
 
     return act
 

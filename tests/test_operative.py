@@ -271,3 +271,72 @@ def test_a_decision_episode_does_not_depend_on_the_episodes_before():
     episode(env, policy, 2)
     after = episode(env, policy, 3)
     assert len(alone) > 20 and alone.tobytes() == after.tobytes()
+
+
+def _seen(rows: list[tuple[float, float, float]], half_length: float = 2.25):
+    """A `Seen` of road users going the route's way: (their rear's distance ahead of the ego's front [m], their centre's
+    offset [m], their speed [m/s]) each; the ego is 4.5 m long."""
+    from mjdrive.tasks.decisions import Seen
+
+    ahead = np.array([r[0] for r in rows], dtype=float)
+    n = len(rows)
+    return Seen(ahead, ahead + half_length, -(ahead + 2 * half_length) - 4.5, np.array([r[1] for r in rows], float),
+                np.full(n, 0.9), np.array([r[2] for r in rows], float), np.zeros(n), np.zeros(n), np.ones(n, bool),
+                np.zeros(n, dtype=np.int64))
+
+
+def test_gap_acceptance_of_the_overtaking_rule():
+    """`RouteTraffic.lane_free`: a car standing 2 m behind blocks a lane change, except as a zipper at the end of
+    the ego's lane; `return_gap`: the first gap long enough to come back into, after a platoon; `overtaking`: no
+    overtaking of a platoon whose end the left lane does not reach, and back to the route's lane once past."""
+    env = suite.load("urban", "lane_change", task_kwargs={"decisions": True})
+    route = env.task.route_traffic
+    s = 80.0  # [m] on the two-lane road, the left lane going on some 170 m
+    behind_standing = _seen([(-11.0, 0.0, 0.0)])  # its front 2 m behind the ego's rear
+    route.seen = behind_standing
+    assert route.lane_gaps(0.0)[2] == pytest.approx(2.0)
+    assert not route.lane_free(0.0, 0.0) and route.lane_free(0.0, 0.0, zipper=True)
+    route.seen = _seen([(-11.0, 0.0, 5.0)])  # the same, moving: no zipper
+    assert not route.lane_free(0.0, 0.0, zipper=True)
+    platoon = [(10.0 + 7.0 * k, 0.0, 4.0) for k in range(5)]  # rears 10-38 m ahead, 2.5 m apart
+    route.seen = _seen(platoon)
+    gap, speed = route.return_gap(0.0, 4.0)
+    assert gap == pytest.approx(38.0 + 4.5) and speed == 4.0  # after the last car of the platoon
+    assert route.overtaking(s, 10.0, 13.9, 0.0) == "left"
+    long_platoon = [(10.0 + 7.0 * k, 0.0, 4.0) for k in range(13)]  # to 94 m ahead: no gap in sight
+    route.seen = _seen(long_platoon)
+    assert route.return_gap(0.0, 4.0)[0] == math.inf and route.overtaking(s, 10.0, 13.9, 0.0) == "keep"
+    route.seen = _seen([(-20.0, 0.0, 4.0)])  # in the left lane, past the slow car, room behind
+    assert route.overtaking(s, 10.0, 13.9, 3.5) == "right"
+    # off the road is measured from the nearer centre line of the route's lane and its same-direction neighbour
+    assert route.lane_distance(s, 3.5) == 0.0 and route.lane_distance(s, 5.0) == pytest.approx(1.5)
+    assert route.lane_distance(s, -3.0) == 3.0 and route.lane_distance(5.0, 3.5) == 3.5  # no lane there
+    env.close()
+
+
+def test_the_autopilot_overtakes_a_slow_car_and_comes_back_centred():
+    """The privileged autopilot (pedals) on the two-lane road: behind a road user slower than its cruise it moves
+    one lane left (the quintic lane offset, pure pursuit following it), passes, and ends the episode centred in the
+    route's lane, arriving; episodes without a slow car stay in the lane."""
+    from mjdrive.envs import make_env
+    from mjdrive.policies import make_policy
+
+    env = make_env("urban", "lane_change", map={"order": ["road"], "lane_width": 2.5})
+    act = make_policy("autopilot", env)
+    task = env.unwrapped.task
+    overtook = 0
+    for seed in (40005, 40006, 40009):
+        env.reset(seed=seed)
+        offsets = []
+        while True:
+            _, _, terminated, truncated, info = env.step(act(None))
+            offsets.append(task.lane_offset)
+            if terminated or truncated:
+                break
+        assert info["success"], (seed, info)
+        assert abs(offsets[-1]) < 0.2  # back in the route's lane
+        if max(offsets) > 1.25:  # it was in the left lane: centred there
+            overtook += 1
+            assert 2.5 * 0.9 < max(offsets) < 2.5 * 1.1
+    assert overtook == 2
+    env.close()

@@ -12,7 +12,7 @@ from mjdrive.roads.conflicts import conflict_zones
 from mjdrive.roads.urban import concatenated
 from mjdrive.traffic import Traffic, TrafficConfig, overlapping_pairs
 from mjdrive.traffic.intentions import AFTER, BEFORE, LANE_CHANGE, LEFT, RIGHT, ROUNDABOUT, STRAIGHT, TAKE_WAY, YIELD
-from mjdrive.traffic.urban import URBAN_CONFIG, urban_traffic
+from mjdrive.traffic.urban import URBAN_CONFIG, piece_exits, urban_traffic
 
 SUBSTEP = URBAN_CONFIG.substep  # [s]
 QUIET = TrafficConfig.from_dict({**URBAN_CONFIG.to_dict(), "respawn": False})  # scenes: nobody else enters
@@ -269,3 +269,37 @@ def test_intention_draws_are_generator_choice():
             assert np.array_equal(intention[rows, column], reference.choice(len(p), size=len(rows), p=p))
         assert draws.random() == reference.random()  # the same draws consumed
         assert not intention[np.setdiff1d(np.arange(12), rows)].any() and len(SCENARIOS) == 4
+
+
+def _pieces_driven(own: bool) -> int:
+    """How many times a vehicle drove from one piece of the concatenated map into another in 3 minutes."""
+    composed = concatenated()
+    traffic = urban_traffic(composed, own_traffic=own)
+    traffic.reset(np.random.default_rng(0))
+    piece = np.array([lane.name.partition("/")[0] for lane in composed.road_map.lanes])
+    before = traffic.vehicles.path[:, 0].copy()
+    generation = traffic.generation[traffic.vehicles.slot].copy()
+    crossings = 0
+    for _ in range(int(round(180.0 / URBAN_CONFIG.decision_period))):
+        traffic.advance(URBAN_CONFIG.decision_period)
+        v = traffic.vehicles
+        now_generation = traffic.generation[v.slot]
+        same = v.active & (now_generation == generation) & (before >= 0)
+        crossings += int(np.sum(same & (piece[np.maximum(v.path[:, 0], 0)] != piece[np.maximum(before, 0)])))
+        before, generation = np.where(v.active, v.path[:, 0], -1), now_generation.copy()
+    return crossings
+
+
+def test_each_piece_of_a_chain_keeps_its_own_traffic():
+    """With own traffic (the urban tasks' default, `piece_traffic="own"`) no vehicle drives from one piece of the
+    chain into the next: it leaves the map at the border (`piece_exits`: the lanes leading into another piece,
+    both ways) and re-enters at a source; with `through` vehicles do drive on."""
+    composed = concatenated()
+    rm = composed.road_map
+    exits = piece_exits(composed)
+    names = {rm.lanes[i].name for i in exits}
+    assert names == {"roundabout/arm0_out_0", "overtaking_road/out_1", "overtaking_road/opp_in_0",
+                     "crossroad/approach_out_0", "crossroad/straight_out_0", "merge_road/approach_out_0"}
+    assert len(piece_exits(concatenated(order=("crossroad",)))) == 0  # one piece: nothing to leave
+    assert _pieces_driven(own=True) == 0
+    assert _pieces_driven(own=False) > 5

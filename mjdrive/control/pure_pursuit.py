@@ -56,13 +56,15 @@ class PurePursuit:
         return min(cruise, math.sqrt(self.max_lateral_accel / curvature))
 
     def __call__(self, pose: tuple[float, float, float], speed: float, path: Lane, cruise: float,
-                 dt: float) -> np.ndarray:
-        """(throttle, steer, brake) for the car at `pose` (x, y, yaw) [m, m, rad] going `speed` [m/s]."""
+                 dt: float, offset: float = 0.0) -> np.ndarray:
+        """(throttle, steer, brake) for the car at `pose` (x, y, yaw) [m, m, rad] going `speed` [m/s], steering for
+        the path shifted `offset` [m] to its left."""
         x, y, yaw = pose
         rear_x, rear_y = x - 0.5 * self.wheelbase * np.cos(yaw), y - 0.5 * self.wheelbase * np.sin(yaw)  # [m]
         s, _ = path.local_coordinates(np.array([rear_x, rear_y]))
         lookahead = self.lookahead_min + self.lookahead_gain * max(speed, 0.0)
-        target_x, target_y = path.point(min(float(s) + lookahead, path.length))
+        s_target = min(float(s) + lookahead, path.length)
+        target_x, target_y = path.point(s_target) if offset == 0.0 else path.position(s_target, offset).tolist()
         alpha = np.arctan2(target_y - rear_y, target_x - rear_x) - yaw
         distance = max(float(np.hypot(target_x - rear_x, target_y - rear_y)), 1e-3)
         delta = np.arctan2(2.0 * self.wheelbase * np.sin(alpha), distance)

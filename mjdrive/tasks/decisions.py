@@ -53,6 +53,14 @@ LANE_GAP = 4.0  # [m] bumper to bumper, at rest
 LANE_HEADWAY = 0.6  # [s]
 SAFE_DECEL = 2.0  # [m/s^2] the most the ego or its new follower has to brake to match speeds
 CROSSING_TIME = 2.0  # [s] the follower closes in this long before the ego is in its lane
+# The overtaking rule of the privileged drivers (`RouteTraffic.overtaking`)
+OVERTAKE_RANGE = 40.0  # [m] a leader nearer than this that is slower than the ego wants to drive is overtaken
+OVERTAKE_MARGIN = 2.0  # [m/s] ... by at least this much
+OVERTAKE_ROOM = 120.0  # [m] ... where the left lane goes on at least this far (out, past, and back)
+RETURN_MARGIN = 25.0  # [m] ... and the ego reaches a gap to come back into this far before the left lane ends
+RETURN_RANGE = 40.0  # [m] this close to the left lane's end the ego comes back at the first gap, slow road users or not
+STANDING_ROOM = 1.0  # [m] ... where a road user standing behind (slower than STANDING_SPEED) is far enough behind
+STANDING_SPEED = 0.5  # [m/s]
 
 
 class Seen(NamedTuple):
@@ -211,16 +219,69 @@ class RouteTraffic:
         error = (yaw - float(self.heading(rear_s[0])) + math.pi) % (2 * math.pi) - math.pi
         return float(rear_s[0]), float(rear_d[0]), error
 
-    def lane_free(self, centre: float, speed: float) -> bool:
+    def lane_free(self, centre: float, speed: float, zipper: bool = False) -> bool:
         """Whether the lane centred `centre` [m] from the route takes the ego at `speed` [m/s] now (gap acceptance
         of a lane change, MOBIL's safety criterion with a headway): the ego can keep LANE_GAP plus LANE_HEADWAY of
         its speed behind the road user ahead braking at most SAFE_DECEL to its speed, and the road user behind
-        likewise behind the ego, after closing in for CROSSING_TIME while the ego moves across."""
+        likewise behind the ego, after closing in for CROSSING_TIME while the ego moves across. zipper (where the
+        ego's lane ends): a road user standing behind, letting the ego in, needs only STANDING_ROOM."""
         ahead, v_ahead, behind, v_behind = self.lane_gaps(centre)
+        if zipper and v_behind < STANDING_SPEED and ahead > 0.0:
+            behind = math.inf if behind >= STANDING_ROOM else behind
         closing = max(v_behind - speed, 0.0)  # [m/s]
         front = LANE_GAP + LANE_HEADWAY * speed + max(speed - v_ahead, 0.0) ** 2 / (2.0 * SAFE_DECEL)
         rear = LANE_GAP + LANE_HEADWAY * v_behind + closing * CROSSING_TIME + closing**2 / (2.0 * SAFE_DECEL)
         return ahead >= front and behind >= rear
+
+    def return_gap(self, centre: float, speed: float) -> tuple[float, float]:
+        """(distance [m] from the ego's front to the first gap ahead in the band of the lane centred `centre` [m]
+        long enough to come back into at `speed` [m/s] (the ego's length and LANE_GAP plus LANE_HEADWAY of the
+        speed each side), the speed [m/s] of the road user before it (0: none)); inf if the observed stretch has
+        none (LOOK_AHEAD)."""
+        seen = self.seen
+        ahead = self.in_band(centre) & seen.aligned & (seen.ahead > 0.0)
+        need = 2.0 * (self.half_length + LANE_GAP + LANE_HEADWAY * speed)
+        order = np.flatnonzero(ahead)[np.argsort(seen.ahead[ahead], kind="stable")]
+        if not len(order):
+            return 0.0, 0.0
+        for i, j in zip(order, [*order[1:], -1], strict=True):
+            front = 2.0 * float(seen.centre[i]) - float(seen.ahead[i])  # [m] its front bumper
+            space = (float(seen.ahead[j]) if j >= 0 else LOOK_AHEAD) - front
+            if space >= need:
+                return front, max(float(seen.along[i]), 0.0)
+        return math.inf, 0.0
+
+    def overtaking(self, s: float, speed: float, wanted: float, target: float,
+                   margin: float = OVERTAKE_MARGIN) -> str:
+        """The privileged drivers' lane-change decision on a two-lane road ("left", "right" or "keep") for the ego at
+        s [m] going `speed` [m/s] wanting `wanted` [m/s], in (or moving to) the lane centred `target` [m] from the
+        route: overtake a road user slower than it wants (by `margin` [m/s], within OVERTAKE_RANGE) when the left
+        lane is faster, free now (`lane_free`) and goes on far enough to pass and reach a gap to come back into
+        before it ends (`return_gap`); come back once the route's lane has no slow road user near ahead and room.
+        Needs `observe` first."""
+        width = float(self.lane_width[self.route_index(s)])
+        ahead, v_ahead, _, _ = self.lane_gaps(0.0)
+        slow = ahead < OVERTAKE_RANGE and v_ahead < wanted - margin
+        if target != 0.0:  # in the left lane: back once past the slow road users (or where it ends), at a gap
+            ending = self.lane_length_left(s) < RETURN_RANGE
+            return "right" if (ending or not slow) and self.lane_free(0.0, speed, ending) else "keep"
+        left_ahead, v_left, _, _ = self.lane_gaps(width)
+        faster = left_ahead > OVERTAKE_RANGE or v_left > v_ahead + margin
+        left_end = self.lane_length_left(s)
+        if not (slow and faster and left_end >= OVERTAKE_ROOM and self.lane_free(width, speed)):
+            return "keep"
+        gap, v_gap = self.return_gap(0.0, v_ahead)
+        v_pass = wanted if left_ahead > OVERTAKE_RANGE else min(wanted, v_left)  # [m/s] in the left lane
+        reach = gap * v_pass / max(v_pass - v_gap, 0.5)  # [m] driven until the gap is beside the ego
+        return "left" if reach + RETURN_MARGIN <= left_end else "keep"
+
+    def lane_distance(self, s: float, offset: float) -> float:
+        """[m] from a point `offset` [m] left of the route at s [m] to the nearer centre line of the route lane
+        there and its same-direction neighbour on that side (a car overtaking is on the road)."""
+        k = self.route_index(s)
+        neighbour = (self.left if offset > 0 else self.right)[k]
+        distance = abs(offset)
+        return distance if neighbour is None else min(distance, abs(distance - float(self.lane_width[k])))
 
     def lane_length_left(self, s: float) -> float:
         """[m] from arc length s to where the route lane there, and its neighbours, end."""
@@ -252,7 +313,7 @@ class RouteTraffic:
         room = self.ends[k] - s > LANE_CHANGE_ROOM
         left = target == 0.0 and self.left[k] is not None and room
         right = target > 0.0 or (target == 0.0 and self.right[k] is not None and room)
-        back_free = target == 0.0 or self.lane_free(0.0, speed)
+        back_free = target == 0.0 or self.lane_free(0.0, speed, zipper=lane_end < RETURN_RANGE)
         return Situation(s, rear_s, rear_lateral, heading_error, speed, operative_decision(decision, scenario),
                          active, stop, tuple(leaders), float(self.lane_width[k]), left, right, lane_end, crossing,
                          back_free, yielding)

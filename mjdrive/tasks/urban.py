@@ -15,7 +15,8 @@ Observations (`observation=`):
               every scenario), speed / 15 m/s, intention / 2 (the active scenario's), nearest first.
   "camera":   image (84, 84, 3) uint8 from the front camera, and ego as above.
 Reward (§5.1.4): 1e-3 x speed [m/s] every step, +1 on arriving at the end of the route, -2 on a collision.
-Episodes end (terminated) on a collision, on arrival, or more than `off_route` m from the route's centre line;
+Episodes end (terminated) on a collision, on arrival, or more than `off_route` m from the centre line of the route's
+lane and of its same-direction neighbour (an overtaking car is on the road);
 they are truncated at the time limit. `info`: success, collision, off_route, scenario, elapsed_time [s],
 average_speed [m/s], distance [m], steps, episode_reward, route_length [m], and at the end the comfort
 metrics (`mjdrive.comfort`, sampled at the control rate by the DrivingEnvironment, as on every task).
@@ -91,7 +92,8 @@ class UrbanConfig(DrivingConfig):
     start_before: float = param(25.0, "the ego starts this far before its scenario (scenario tasks)", "m",
                                 ge=5.0, le=200.0)
     warmup: float = param(10.0, "traffic simulated before the episode starts", "s", ge=0.0, le=120.0)
-    off_route: float = param(4.0, "distance from the route's centre line that ends the episode", "m",
+    off_route: float = param(4.0, "distance from the centre line of the route's lane (or of its same-direction "
+                             "neighbour) that ends the episode", "m",
                              gt=0.0, le=20.0)
     map: UrbanMap | None = param(None, "the map: the pieces' order and parameters ({order: [...], roundabout: "
                                  "{...}, road: {...}, crossroad: {...}, merge: {...}}), or the path of a YAML or "
@@ -104,6 +106,10 @@ class UrbanConfig(DrivingConfig):
     road_users: dict[str, int] | None = param(None, "road users by kind, overriding the map's default",
                                               ge=0, le=100, keys=tuple(k for k in KIND_NAMES if k != "pedestrian"))
     traffic_config: TrafficConfig = param(URBAN_CONFIG, "traffic behaviour constants (a dict of its keywords)")
+    piece_traffic: str = param("own", "on a chain of pieces: each piece keeps its own traffic (vehicles leave the map "
+                               "where their lane passes into the next piece, as study 002 spawns and destroys "
+                               "vehicles at the scenarios' critical points), or `through`: they drive on",
+                               choices=("own", "through"))
     image_size: int = param(84, "side of the square camera image", "px", ge=16, le=512)
     decisions: bool = param(False, "study 002's decision actions (drive / stop, keep / left / right) instead of "
                             "throttle, steer, brake: one env step per decision period, the operative level "
@@ -142,7 +148,7 @@ class UrbanTask(DrivingTask):
         self.scenario = scenario
         self.route = list(route.route)  # lane ids (scripted drivers read them)
         self.traffic = urban_traffic(route.composed, counts=collections.Counter(kinds),
-                                     config=config.traffic_config)
+                                     config=config.traffic_config, own_traffic=config.piece_traffic == "own")
         self.traffic.bind(model)
         self.traffic.set_ego_route(route.route)
         self.route_lane = Lane(np.asarray(route.polyline), name="route")
@@ -170,23 +176,14 @@ class UrbanTask(DrivingTask):
         self.junction_observed = config.junction_control != "give_way"  # the observation's `junction`
         self._lamps: np.ndarray | None = None  # [m] (E, 2) where the logs draw each entry's signal
         self.step_period = CONTROL_TIMESTEP  # [s] of one env step
+        self._set_up_route_traffic()
         self.decisions: tuple[str, ...] | None = None  # the decision action set's names (None: pedals)
         if config.decisions:
             self._set_up_decisions(config)
 
-    def _set_up_decisions(self, config: UrbanConfig) -> None:
-        """The decision action set: its names, the operative level and the ground truth it reads."""
-        self.decisions = ACTIONS[self.name]
-        self.step_period = config.decision_period
-        self.control_ticks = int(round(config.decision_period / CONTROL_TIMESTEP))
+    def _set_up_route_traffic(self) -> None:
+        """The ground truth along the route (`RouteTraffic`): the operative level's, the privileged drivers'."""
         rm, route = self.road_map, self.route
-        limits = np.array([rm.lanes[lane].speed_limit for lane in route])
-        c = config.operative
-        profile = route_speed_profile(self.route_lane, self.route_starts, limits, c.lateral_accel, c.lateral_jerk,
-                                      c.curve_decel, c.path_deviation, c.smoothing, c.curve_footprint,
-                                      reference=0.5 * self.params.wheelbase)
-        self.operative = OperativeLevel(profile, self.params, CONTROL_TIMESTEP, c,
-                                        extra_delay=config.steering_latency)
         table = self.traffic.approaches
         lines, scenarios = [], []
         for k, lane in enumerate(route):  # the give-way lines of the conflict zones on the route
@@ -202,6 +199,20 @@ class UrbanTask(DrivingTask):
         self.route_traffic = RouteTraffic(rm, tuple(route), self.route_starts, RouteFrame(self.route_lane),
                                           self.route_lane.heading, self.urban.tactical.scenario_at, give_way, merges,
                                           self.params.length, self.params.width, CONTROL_TIMESTEP)
+
+    def _set_up_decisions(self, config: UrbanConfig) -> None:
+        """The decision action set: its names, the operative level and the ground truth it reads."""
+        self.decisions = ACTIONS[self.name]
+        self.step_period = config.decision_period
+        self.control_ticks = int(round(config.decision_period / CONTROL_TIMESTEP))
+        rm, route = self.road_map, self.route
+        limits = np.array([rm.lanes[lane].speed_limit for lane in route])
+        c = config.operative
+        profile = route_speed_profile(self.route_lane, self.route_starts, limits, c.lateral_accel, c.lateral_jerk,
+                                      c.curve_decel, c.path_deviation, c.smoothing, c.curve_footprint,
+                                      reference=0.5 * self.params.wheelbase)
+        self.operative = OperativeLevel(profile, self.params, CONTROL_TIMESTEP, c,
+                                        extra_delay=config.steering_latency)
         self._steer_queue: list[float] = []  # steering commands still to act (steering_latency)
         self.ticks: list[dict] = []  # this env step's control periods, for the logs
 
@@ -352,20 +363,20 @@ class UrbanTask(DrivingTask):
                 "lane_offset_target": status.target_offset}
 
     def ego_state(self, physics: Physics) -> EgoState:
-        """The ego for traffic: pose, speed, and its place on the route's lanes (when on them)."""
+        """The ego for traffic: pose, speed, and its place on the lanes: the route's, or a neighbour lane's when
+        it is there (beside the route where there is none: the route's); none farther off."""
         x, y, yaw = self.vehicle.pose(physics.raw_data)
         speed = self.vehicle.speed(physics.raw_data)
-        path, s_lane = None, 0.0
         half = 0.5 * self.route_lane.width
-        if abs(self.lane_offset) <= half:
-            k = int(np.searchsorted(self.route_starts, self.route_s, side="right") - 1)
-            path = self._route_lanes[k:].copy()
-            s_lane = float(self.route_s - self.route_starts[k])
-        elif self.decisions is not None and abs(self.lane_offset) <= 3 * half:  # in a neighbour lane
+        if abs(self.lane_offset) > 3 * half:
+            return EgoState(x, y, yaw, speed, self.params.length, self.params.width, None, 0.0)
+        if abs(self.lane_offset) > half:  # in a neighbour lane
             neighbour = self.route_traffic.neighbour_path(self.route_s, 1 if self.lane_offset > 0 else -1)
             if neighbour is not None:
-                path, s_lane = neighbour
-        return EgoState(x, y, yaw, speed, self.params.length, self.params.width, path, s_lane)
+                return EgoState(x, y, yaw, speed, self.params.length, self.params.width, *neighbour)
+        k = int(np.searchsorted(self.route_starts, self.route_s, side="right") - 1)
+        return EgoState(x, y, yaw, speed, self.params.length, self.params.width, self._route_lanes[k:].copy(),
+                        float(self.route_s - self.route_starts[k]))
 
     def _update_ego(self, physics: Physics) -> None:
         """The ego's chassis state, route coordinates, heading error and active scenario (in one compiled pass)."""
@@ -398,7 +409,7 @@ class UrbanTask(DrivingTask):
         info = self.info
         collision = self.collision_sensor.collided(physics.raw_data)
         arrived = self.route_s >= self.route_end - ARRIVAL_MARGIN
-        off_route = abs(self.lane_offset) > self.config.off_route
+        off_route = self.route_traffic.lane_distance(self.route_s, self.lane_offset) > self.config.off_route
         info["collision"] |= collision
         info["off_route"] |= off_route and not collision
         violation = self.junction_watch.violation if not info["collision"] else None

@@ -100,16 +100,22 @@ class Traffic:
 
     def __init__(self, road_map: RoadMap | TrafficMap, kinds: Sequence[str],
                  config: TrafficConfig | None = None, conflicts: ConflictZones | None = None,
-                 spawn_points: SpawnPoints | None = None):
+                 spawn_points: SpawnPoints | None = None, exits: Sequence[int] = ()):
         """`conflicts` (the map's conflict-zone table, `roads.conflict_zones`) switches on the urban rules:
         right of way at every crossing and merge of the table, intentions, intention-driven lane changes
-        with a signalling phase; without it, entries yield at merges by gap acceptance (the roundabout)."""
+        with a signalling phase; without it, entries yield at merges by gap acceptance (the roundabout).
+        `exits`: lanes at whose end vehicles leave the map although the road goes on (a chain's piece borders)."""
         self.config = cfg = config or TrafficConfig()
         self.constants = cfg.constants()
         announce_compilation()
         self.map = m = road_map if isinstance(road_map, TrafficMap) else TrafficMap(road_map, cfg.lateral_accel)
         self.urban = conflicts is not None
         self.zones = conflicts
+        exits = np.asarray(exits, dtype=np.int64).reshape(-1)
+        if len(exits) and (exits.min() < 0 or exits.max() >= m.n_lanes):
+            raise ValueError(f"exits: lane ids must be in [0, {m.n_lanes}), got {exits.tolist()}")
+        self.exits = np.zeros(m.n_lanes, dtype=bool)  # (L,) lanes whose vehicles leave the map at their end
+        self.exits[exits] = True
         self.roles = LaneRoles.of(m.road_map) if self.urban else LaneRoles.none()
         self.approaches = (ApproachTable.from_zones(conflicts, m.road_map, self.roles.ring) if self.urban
                            else ApproachTable.none())
@@ -357,7 +363,8 @@ class Traffic:
         v, cfg = self.vehicles, self.config
         period = cfg.decision_period if self.urban else 0.0  # urban rules: waiting times count
         lane_before, active_before = v.path[:, 0].copy(), v.active.copy()
-        self.stats["despawned"] += motion.move_on(v, self.routes, self.map.length, self.rng, period)
+        self.stats["despawned"] += motion.move_on(v, self.routes, self.map.length, self.exits, self.rng,
+                                                  period)
         if self.junctions.active:
             self._count_violations(lane_before, active_before)
             self.entry_state = jc.entry_states(self.junctions, self.signal_time)

@@ -235,11 +235,12 @@ def count_waiting(vehicles, period):
 
 
 @inline
-def lanes_passed(vehicles, lane_length):
+def lanes_passed(vehicles, lane_length, exits):
     """One round of moving on along the paths, in place: active vehicles past the end of their lane (s >= its
     length [m]) move on to the next lane of their path (s less that length, the path shifted by one, its last
-    entry left for the caller to draw); those whose path ends there leave the map (inactive, speed 0). Returns
-    the rows that moved on (K,), in order, and how many of them left."""
+    entry left for the caller to draw); those whose path ends there, or whose lane was an exit (exits (L,) bool:
+    the road goes on, the traffic does not), leave the map (inactive, speed 0). Returns the rows that moved on (K,),
+    in order, and how many of them left."""
     path, s, active, v = vehicles.path, vehicles.s, vehicles.active, vehicles.v
     n_v, n_p = path.shape
     rows = np.empty(n_v, dtype=np.int64)
@@ -251,10 +252,11 @@ def lanes_passed(vehicles, lane_length):
     gone = 0
     for j in range(k):
         r = rows[j]
-        s[r] -= lane_length[path[r, 0]]
+        passed = path[r, 0]
+        s[r] -= lane_length[passed]
         for c in range(n_p - 1):
             path[r, c] = path[r, c + 1]
-        if path[r, 0] < 0:
+        if path[r, 0] < 0 or exits[passed]:
             active[r] = False
             v[r] = 0.0
             gone += 1
@@ -262,16 +264,16 @@ def lanes_passed(vehicles, lane_length):
 
 
 @jit
-def end_period(vehicles, lane_length, waiting_period):
+def end_period(vehicles, lane_length, exits, waiting_period):
     """A decision period over: the waiting times run on by `waiting_period` [s] (urban rules; 0: not counted;
     `count_waiting`), then one round of `lanes_passed`."""
     if waiting_period > 0:
         count_waiting(vehicles, waiting_period)
-    return lanes_passed(vehicles, lane_length)
+    return lanes_passed(vehicles, lane_length, exits)
 
 
 @jit
-def extend_then_lanes_passed(vehicles, routes, lane_length, rows, u):
+def extend_then_lanes_passed(vehicles, routes, lane_length, exits, rows, u):
     """The end of a round of `lanes_passed` and the next round: the vehicles `rows` that moved on draw their path's
     new last lane with the uniform draws u (K,) (`intentions.next_lanes`), then `lanes_passed`."""
     path = vehicles.path
@@ -282,15 +284,16 @@ def extend_then_lanes_passed(vehicles, routes, lane_length, rows, u):
     chosen = next_lanes(routes, vehicles.intention, vehicles.ring_passed, rows, previous, u)
     for j in range(len(rows)):
         path[rows[j], n_p - 1] = chosen[j]
-    return lanes_passed(vehicles, lane_length)
+    return lanes_passed(vehicles, lane_length, exits)
 
 
-def move_on(vehicles, routes, lane_length: np.ndarray, rng: np.random.Generator, waiting_period: float) -> int:
+def move_on(vehicles, routes, lane_length: np.ndarray, exits: np.ndarray, rng: np.random.Generator,
+            waiting_period: float) -> int:
     """A decision period over (`end_period`), vehicles past the end of their lane move on along their path, drawing
-    the lanes their paths gain (or leave the map at dead ends); how many left."""
-    rows, gone = end_period(vehicles, lane_length, waiting_period)
+    the lanes their paths gain (or leave the map at dead ends and exits, (L,) bool); how many left."""
+    rows, gone = end_period(vehicles, lane_length, exits, waiting_period)
     left = 0
     while len(rows):
         left += gone
-        rows, gone = extend_then_lanes_passed(vehicles, routes, lane_length, rows, rng.random(len(rows)))
+        rows, gone = extend_then_lanes_passed(vehicles, routes, lane_length, exits, rows, rng.random(len(rows)))
     return left

@@ -96,7 +96,8 @@ class TrafficConfig(Config):
     signal_time: float = param(1.0, "indicator on before an intended lane change starts", "s", ge=0.0, le=10.0)
     safe_decel: float = param(3.0, "MOBIL safety: the new follower never has to brake harder", "m/s^2",
                               gt=0.0, le=10.0)
-    courtesy_range: float = param(40.0, "a yielding vehicle opens a gap for agents this close to the merge point",
+    courtesy_range: float = param(60.0, "a yielding vehicle opens a gap for agents this close to the merge point (a "
+                                  "lane's 40 m taper and a car's length)",
                                   "m", ge=0.0, le=200.0)
     desired_speed: tuple[float, float] | None = param(None, "urban rules: vehicles' maximum speeds drawn in "
                                                       "[min, max] (None: each kind's range)", "m/s", ge=0.5, le=40.0)

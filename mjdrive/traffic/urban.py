@@ -94,10 +94,23 @@ def spawn_points(composed: ComposedMap) -> SpawnPoints:
     return SpawnPoints(table[:, 0].astype(np.int64), table[:, 1], table[:, 2:4], table[:, 4].astype(np.int64))
 
 
+def piece_exits(composed: ComposedMap) -> np.ndarray:
+    """The lanes of a chain of pieces that lead into another piece (its borders, both ways): where each piece's
+    traffic leaves the map when the pieces keep their own traffic (`urban_traffic(own_traffic=True)`)."""
+    if len(composed.pieces) < 2:
+        return np.zeros(0, dtype=np.int64)
+    rm = composed.road_map
+    piece = [lane.name.partition("/")[0] for lane in rm.lanes]
+    return np.array([i for i, successors in enumerate(rm.successors) if any(piece[j] != piece[i] for j in successors)],
+                    dtype=np.int64)
+
+
 def urban_traffic(composed: ComposedMap, counts: Mapping[str, int] | None = None,
-                  config: TrafficConfig | None = None) -> Traffic:
+                  config: TrafficConfig | None = None, own_traffic: bool = True) -> Traffic:
     """Traffic with urban rules on `composed`: its conflict zones, `counts` road users by kind (default:
-    `default_counts`), `config` (default URBAN_CONFIG) and the map's spawn points."""
+    `default_counts`), `config` (default URBAN_CONFIG) and the map's spawn points. own_traffic: on a chain of
+    pieces each piece keeps its own traffic (vehicles leave the map where their lane passes into the next piece,
+    `piece_exits`, as §5.3 spawns and destroys vehicles at the scenarios' critical points); else they drive on."""
     kinds = counts_to_kinds(default_counts(composed) if counts is None else dict(counts))
     return Traffic(composed.road_map, kinds, config or URBAN_CONFIG, conflicts=conflict_zones(composed.road_map),
-                   spawn_points=spawn_points(composed))
+                   spawn_points=spawn_points(composed), exits=piece_exits(composed) if own_traffic else ())
