@@ -229,10 +229,13 @@ class OperativeLevel:
         stop = self._stop_point(situation, decision)
         plan_ahead = status.plan.s[1:] if status.plan is not None else v * self.mpc.times[1:]
         v_ref = self.profile.speed(situation.s + plan_ahead)
-        if situation.stop is not None and situation.yielding:  # approach the line slowly enough to stop there
-            c = self.config
-            room = np.maximum(situation.stop - plan_ahead, 0.0)
-            v_ref = np.minimum(v_ref, np.sqrt(c.approach_speed**2 + 2.0 * c.curve_decel * room))
+        # approach a give-way line where the rules have the car wait, and the end of a lane off the route's, slowly
+        # enough to stop there
+        for end in (situation.stop if situation.yielding else None, situation.lane_end):
+            if end is not None:
+                c = self.config
+                room = np.maximum(end - plan_ahead, 0.0)
+                v_ref = np.minimum(v_ref, np.sqrt(c.approach_speed**2 + 2.0 * c.curve_decel * room))
         start = time.perf_counter()
         plan = self.mpc.solve(v, self.accel, v_ref, stop, situation.leaders)
         solve_ms = 1e3 * (time.perf_counter() - start)
