@@ -303,3 +303,22 @@ def test_each_piece_of_a_chain_keeps_its_own_traffic():
     assert len(piece_exits(concatenated(order=("crossroad",)))) == 0  # one piece: nothing to leave
     assert _pieces_driven(own=True) == 0
     assert _pieces_driven(own=False) > 5
+
+
+def test_a_closed_lane_takes_no_traffic_in():
+    """`urban_traffic(closed=...)` (the urban tasks' `entry_traffic=false` closes the route's first lane): no vehicle
+    enters there, neither at the start nor later; the same map with the lane open fills it."""
+    composed = concatenated(order=("crossroad",))
+    approach = composed.road_map.lane_id("crossroad/approach_in_0")
+
+    def on_approach(closed: tuple[int, ...]) -> int:
+        traffic = urban_traffic(composed, closed=closed)
+        traffic.reset(np.random.default_rng(0))
+        seen = 0
+        for _ in range(int(round(120.0 / URBAN_CONFIG.decision_period))):
+            seen += int(np.sum(traffic.vehicles.active & (traffic.vehicles.path[:, 0] == approach)))
+            traffic.advance(URBAN_CONFIG.decision_period)
+        return seen
+
+    assert on_approach((approach,)) == 0
+    assert on_approach(()) > 10

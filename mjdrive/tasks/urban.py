@@ -110,6 +110,8 @@ class UrbanConfig(DrivingConfig):
                                "where their lane passes into the next piece, as study 002 spawns and destroys "
                                "vehicles at the scenarios' critical points), or `through`: they drive on",
                                choices=("own", "through"))
+    entry_traffic: bool = param(True, "traffic also enters on the route's first lane, ahead of the ego (false: the "
+                                "ego meets its scenario alone, as on a chain whose previous piece keeps its traffic)")
     image_size: int = param(84, "side of the square camera image", "px", ge=16, le=512)
     decisions: bool = param(False, "study 002's decision actions (drive / stop, keep / left / right) instead of "
                             "throttle, steer, brake: one env step per decision period, the operative level "
@@ -148,7 +150,8 @@ class UrbanTask(DrivingTask):
         self.scenario = scenario
         self.route = list(route.route)  # lane ids (scripted drivers read them)
         self.traffic = urban_traffic(route.composed, counts=collections.Counter(kinds),
-                                     config=config.traffic_config, own_traffic=config.piece_traffic == "own")
+                                     config=config.traffic_config, own_traffic=config.piece_traffic == "own",
+                                     closed=() if config.entry_traffic else (route.route[0],))
         self.traffic.bind(model)
         self.traffic.set_ego_route(route.route)
         self.route_lane = Lane(np.asarray(route.polyline), name="route")

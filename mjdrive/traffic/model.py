@@ -100,11 +100,12 @@ class Traffic:
 
     def __init__(self, road_map: RoadMap | TrafficMap, kinds: Sequence[str],
                  config: TrafficConfig | None = None, conflicts: ConflictZones | None = None,
-                 spawn_points: SpawnPoints | None = None, exits: Sequence[int] = ()):
+                 spawn_points: SpawnPoints | None = None, exits: Sequence[int] = (), closed: Sequence[int] = ()):
         """`conflicts` (the map's conflict-zone table, `roads.conflict_zones`) switches on the urban rules:
         right of way at every crossing and merge of the table, intentions, intention-driven lane changes
         with a signalling phase; without it, entries yield at merges by gap acceptance (the roundabout).
-        `exits`: lanes at whose end vehicles leave the map although the road goes on (a chain's piece borders)."""
+        `exits`: lanes at whose end vehicles leave the map although the road goes on (a chain's piece borders);
+        `closed`: lanes where no vehicle enters, neither at a source nor at an episode's start."""
         self.config = cfg = config or TrafficConfig()
         self.constants = cfg.constants()
         announce_compilation()
@@ -116,6 +117,8 @@ class Traffic:
             raise ValueError(f"exits: lane ids must be in [0, {m.n_lanes}), got {exits.tolist()}")
         self.exits = np.zeros(m.n_lanes, dtype=bool)  # (L,) lanes whose vehicles leave the map at their end
         self.exits[exits] = True
+        self.closed = np.zeros(m.n_lanes, dtype=bool)  # (L,) lanes where no vehicle enters
+        self.closed[np.asarray(closed, dtype=np.int64).reshape(-1)] = True
         self.roles = LaneRoles.of(m.road_map) if self.urban else LaneRoles.none()
         self.approaches = (ApproachTable.from_zones(conflicts, m.road_map, self.roles.ring) if self.urban
                            else ApproachTable.none())
@@ -141,7 +144,7 @@ class Traffic:
                                           np.array([t.decel for t in vt]), np.array([t.headway for t in vt]))
         self._b_agents = np.append(self.vehicle_kinds.b_comf, EGO_DECEL)  # [m/s^2] comfortable decelerations; ego
         self.spawner = Spawner(m, spawn_points, np.array([t.speed for t in vt]).reshape(-1, 2),
-                               np.array([t.lateral for t in vt]).reshape(-1, 2), cfg, self.urban)
+                               np.array([t.lateral for t in vt]).reshape(-1, 2), cfg, self.urban, self.closed)
         self._walk_range = np.array([types[i].speed for i in self.pedestrian_slots]).reshape(-1, 2)
         self.pedestrians = on_crosswalks(m, self.pedestrian_slots, cfg.kerb)
         self.n_plan = max(1, int(round(cfg.decision_period / cfg.substep)))
@@ -224,7 +227,7 @@ class Traffic:
         self._reset_state()
         self.ego = ego
         m = self.map
-        free = np.ones(len(m.spawn_lane), dtype=bool)
+        free = ~self.closed[m.spawn_lane]
         if ego is not None:
             free &= np.hypot(m.spawn_xy[:, 0] - ego.x, m.spawn_xy[:, 1] - ego.y) >= keep_clear
         points = np.flatnonzero(free)

@@ -45,19 +45,22 @@ class Spawner:
     changes (places, the vehicles' speed and offset ranges, the configuration); the state comes with each call."""
 
     def __init__(self, traffic_map, spawn_points: SpawnPoints | None, speed_range: np.ndarray,
-                 lateral_range: np.ndarray, config, urban: bool):
+                 lateral_range: np.ndarray, config, urban: bool, closed: np.ndarray | None = None):
         """speed_range, lateral_range: (NV, 2) [m/s], [m] each vehicle's kind's desired speeds and lateral offsets
-        (with urban rules `config.desired_speed` replaces the speeds)."""
+        (with urban rules `config.desired_speed` replaces the speeds); closed: (L,) bool, sources where nobody
+        enters."""
         m = traffic_map
-        self.n_sources = len(m.sources)
+        open_ = np.ones(len(m.sources), dtype=bool) if closed is None else ~closed[m.sources]
+        sources, source_xy = m.sources[open_], m.source_xy[open_]
+        self.n_sources = len(sources)
         self.points = spawn_points
         if spawn_points is None:
-            self.places = Places(m.sources, np.zeros(len(m.sources)), m.source_xy)
+            self.places = Places(sources, np.zeros(len(sources)), source_xy)
         else:
-            self.places = Places(np.concatenate([m.sources, spawn_points.lane]),
-                                 np.concatenate([np.zeros(len(m.sources)), spawn_points.s]),
-                                 np.concatenate([m.source_xy, np.column_stack(m.lookup(spawn_points.lane,
-                                                                                       spawn_points.s)[:2])]))
+            self.places = Places(np.concatenate([sources, spawn_points.lane]),
+                                 np.concatenate([np.zeros(len(sources)), spawn_points.s]),
+                                 np.concatenate([source_xy, np.column_stack(m.lookup(spawn_points.lane,
+                                                                                     spawn_points.s)[:2])]))
         self.speed_range, self.lateral_range = speed_range, lateral_range
         self.config, self.urban = config, urban
         self.speed_limit = m.speed_limit

@@ -106,11 +106,14 @@ def piece_exits(composed: ComposedMap) -> np.ndarray:
 
 
 def urban_traffic(composed: ComposedMap, counts: Mapping[str, int] | None = None,
-                  config: TrafficConfig | None = None, own_traffic: bool = True) -> Traffic:
+                  config: TrafficConfig | None = None, own_traffic: bool = True,
+                  closed: tuple[int, ...] = ()) -> Traffic:
     """Traffic with urban rules on `composed`: its conflict zones, `counts` road users by kind (default:
     `default_counts`), `config` (default URBAN_CONFIG) and the map's spawn points. own_traffic: on a chain of
     pieces each piece keeps its own traffic (vehicles leave the map where their lane passes into the next piece,
-    `piece_exits`, as §5.3 spawns and destroys vehicles at the scenarios' critical points); else they drive on."""
+    `piece_exits`, as §5.3 spawns and destroys vehicles at the scenarios' critical points); else they drive on.
+    closed: lanes where no vehicle enters (`Traffic`)."""
     kinds = counts_to_kinds(default_counts(composed) if counts is None else dict(counts))
     return Traffic(composed.road_map, kinds, config or URBAN_CONFIG, conflicts=conflict_zones(composed.road_map),
-                   spawn_points=spawn_points(composed), exits=piece_exits(composed) if own_traffic else ())
+                   spawn_points=spawn_points(composed), exits=piece_exits(composed) if own_traffic else (),
+                   closed=closed)
