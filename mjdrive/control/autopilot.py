@@ -61,9 +61,9 @@ class Autopilot:
         route = task.route_lane
         s, _ = route.local_coordinates(np.array(pose[:2]))
         desired = self.driver.target_speed(route, float(s), self.cruise)
+        offset = 0.0  # [m] from the route, to its left
         if self.careful:
-            desired = self._overtake(speed, desired)
-        offset = self.target if self.manoeuvre is None else self.manoeuvre(self.time)[0]
+            desired, offset = self._overtake(speed, desired)
         command = self.driver(pose, speed, route, self.cruise, self.control_dt, offset=offset)
         if not self.careful:
             return command
@@ -78,14 +78,14 @@ class Autopilot:
         throttle, brake = self.driver.speed(speed, target, self.control_dt)
         return np.array([throttle, command[1], brake])
 
-    def _overtake(self, speed: float, desired: float) -> float:
+    def _overtake(self, speed: float, desired: float) -> tuple[float, float]:
         """On a two-lane road: start a lane change when the overtaking rule says so (every `decision_period`, none
         while one is under way); out of the route's lane, slow down to stop before the lane it is in ends. Returns
-        the desired speed [m/s]."""
+        the desired speed [m/s] and the lateral offset [m] to steer for."""
         task = self.task
         route = getattr(task, "route_traffic", None)
         if route is None:
-            return desired
+            return desired, 0.0
         if self.manoeuvre is not None and self.manoeuvre.done(self.time):
             self.manoeuvre = None
         s = task.route_s
@@ -105,4 +105,4 @@ class Autopilot:
         if abs(offset) > 0.5 * float(route.lane_width[route.route_index(s)]):  # able to stop before the lane ends
             room = max(route.lane_length_left(s) - LANE_END_STOP, 0.0)  # [m]
             desired = min(desired, math.sqrt(2.0 * LANE_END_DECEL * room))
-        return desired
+        return desired, offset

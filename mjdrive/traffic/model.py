@@ -93,6 +93,16 @@ class MapTables(NamedTuple):
     urban: bool
 
 
+def _lane_mask(lanes: Sequence[int], n_lanes: int, name: str) -> np.ndarray:
+    """(n_lanes,) bool, True at `lanes` (lane ids, checked)."""
+    ids = np.asarray(lanes, dtype=np.int64).reshape(-1)
+    if len(ids) and (ids.min() < 0 or ids.max() >= n_lanes):
+        raise ValueError(f"{name}: lane ids must be in [0, {n_lanes}), got {ids.tolist()}")
+    mask = np.zeros(n_lanes, dtype=bool)
+    mask[ids] = True
+    return mask
+
+
 class Traffic:
     """All road users of one world. `kinds` gives each slot's kind (in the order of the model's
     `traffic_{i}` bodies); the count of active users per kind is the slot count (minus users that just
@@ -112,13 +122,8 @@ class Traffic:
         self.map = m = road_map if isinstance(road_map, TrafficMap) else TrafficMap(road_map, cfg.lateral_accel)
         self.urban = conflicts is not None
         self.zones = conflicts
-        exits = np.asarray(exits, dtype=np.int64).reshape(-1)
-        if len(exits) and (exits.min() < 0 or exits.max() >= m.n_lanes):
-            raise ValueError(f"exits: lane ids must be in [0, {m.n_lanes}), got {exits.tolist()}")
-        self.exits = np.zeros(m.n_lanes, dtype=bool)  # (L,) lanes whose vehicles leave the map at their end
-        self.exits[exits] = True
-        self.closed = np.zeros(m.n_lanes, dtype=bool)  # (L,) lanes where no vehicle enters
-        self.closed[np.asarray(closed, dtype=np.int64).reshape(-1)] = True
+        self.exits = _lane_mask(exits, m.n_lanes, "exits")  # (L,) lanes whose vehicles leave the map at their end
+        self.closed = _lane_mask(closed, m.n_lanes, "closed")  # (L,) lanes where no vehicle enters
         self.roles = LaneRoles.of(m.road_map) if self.urban else LaneRoles.none()
         self.approaches = (ApproachTable.from_zones(conflicts, m.road_map, self.roles.ring) if self.urban
                            else ApproachTable.none())
