@@ -119,6 +119,12 @@ def test_default_traffic_scales_with_the_map():
     assert small["car"] < DEFAULT_COUNTS["crossroad"]["car"] < big["car"]
     reordered = default_counts(concatenated(order=("merge", "crossroad", "road", "roundabout")))
     assert abs(reordered["car"] - 26) <= 1  # the same pieces in another order: about the study's route
+    # a junction's traffic follows its roads' length, not its lanes: more lanes or a skewed crossing (longer
+    # connectors) carry no more vehicles through the same conflicts; a road's more lanes do carry more
+    for crossroad in ({"main_lanes": 2}, {"minor_lanes": 3}, {"crossing_angle": 2.2}, {"lane_width": 5.0}):
+        assert default_counts(concatenated(order=("crossroad",), crossroad=crossroad)) == DEFAULT_COUNTS["crossroad"]
+    wide_road = default_counts(concatenated(order=("road",), road={"lanes": 3, "opposite_lanes": 2}))
+    assert wide_road["car"] > DEFAULT_COUNTS["overtaking_road"]["car"]
 
 
 def test_the_autopilot_and_the_rules_drive_a_new_map(drive_episode):

@@ -37,6 +37,7 @@ DEFAULT_COUNTS: dict[str, dict[str, int]] = {
     "roundabout+overtaking_road+crossroad+merge_road": {"car": 26, "motorcycle": 6},
 }
 CHAIN_SHARE = 0.6  # a chain of pieces carries this share of its pieces' densities (the study's route: 26 of 44 cars)
+JUNCTIONS = ("crossroad",)  # pieces whose traffic scales with their roads' length, not their lanes'
 PIECE_PARAMS = {"roundabout": "roundabout", "overtaking_road": "road", "crossroad": "crossroad",
                 "merge_road": "merge"}  # piece name -> its UrbanMap keyword
 
@@ -53,10 +54,16 @@ def _default_lane_length(piece: str) -> float:
 
 
 def _lane_lengths(composed: ComposedMap) -> dict[str, float]:
-    """Total lane length [m] of each piece of `composed`, by piece name."""
+    """Total lane length [m] of each piece of `composed`, by piece name; a junction's (JUNCTIONS): the length of its
+    arms, one lane each way: what a junction carries is set by its conflicts, not by its lanes (at the one-lane
+    density, a main road of two lanes each way, or a skewed crossing's longer connectors, would queue the minor
+    road for minutes)."""
     out = {piece.name: 0.0 for piece in composed.pieces}
-    for lane in composed.road_map.lanes:
+    rm = composed.road_map
+    for i, lane in enumerate(rm.lanes):
         prefix = lane.name.partition("/")[0]
+        if prefix in JUNCTIONS and (lane.in_junction or rm.right_neighbour[i] is not None):
+            continue
         out[prefix] = out.get(prefix, 0.0) + lane.length
     return out
 
