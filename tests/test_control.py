@@ -94,8 +94,8 @@ def _random_problem(rng: np.random.Generator) -> dict:
 
 
 def test_mpc_solutions_meet_their_bounds_on_randomised_problems():
-    """Every plan, checked here from its numbers: the jerks within the bound used (comfort, or emergency when the
-    plan says so), the accelerations likewise from step 1, the states following the dynamics from the initial
+    """Every plan, checked here from its numbers: the jerks within the bound used (comfort, firm or emergency as the
+    plan says), the accelerations likewise from step 1, the states following the dynamics from the initial
     state, and each soft constraint violated by no more than the plan's reported slack."""
     config = MPCConfig()
     mpc = LongitudinalMPC(config)
@@ -108,9 +108,10 @@ def test_mpc_solutions_meet_their_bounds_on_randomised_problems():
             mpc.reset()
         plan = mpc.solve(**problem)
         statuses[plan.status] = statuses.get(plan.status, 0) + 1
-        emergency = plan.status == "emergency"
-        j_max = config.emergency_jerk_max if emergency else config.jerk_max
-        a_min = config.emergency_accel_min if emergency else config.accel_min
+        a_min, j_max = {"solved": (config.accel_min, config.jerk_max),
+                        "firm": (config.firm_accel_min, config.firm_jerk_max),
+                        "emergency": (config.emergency_accel_min, config.emergency_jerk_max),
+                        "fallback": (config.accel_min, config.jerk_max)}[plan.status]
         assert np.all(np.abs(plan.j) <= j_max + 1e-9)
         assert np.all(plan.a[1:] >= a_min - 1e-9) and np.all(plan.a[1:] <= config.accel_max + 1e-9)
         v0, a0 = max(problem["speed"], 0.0), mpc.initial_accel(problem["speed"], problem["accel"])
@@ -142,16 +143,47 @@ def test_a_plan_from_braking_hard_near_rest_stops_without_reversing():
     a0 = mpc.initial_accel(2.28, config.accel_min)
     assert a0 == pytest.approx(-np.sqrt(2 * config.jerk_max * 2.28)) and a0 > config.accel_min
     plan = mpc.solve(2.28, config.accel_min, 3.3, leaders=(Leader(1.4, 0.0),))
-    assert plan.status in ("solved", "emergency") and plan.converged
+    assert plan.status in ("solved", "firm", "emergency") and plan.converged
     assert plan.v.min() > -0.05 and abs(plan.v[-1]) < 0.05 and plan.s[-1] < 1.4  # v >= 0 to OSQP's accuracy
+
+
+def test_mpc_answers_a_standing_obstacle_by_the_mildest_bounds_that_keep_the_gap():
+    """At 10 m/s towards a standing car: far enough, the comfort bounds keep it out of the emergency gap; nearer,
+    the firm bounds (and their jerk, not the emergency's) do; nearer still only the emergency bounds. Each plan
+    stays out of the emergency gap (its intrusion), and each tier is used only where the one before cannot."""
+    config = MPCConfig()
+    statuses = []
+    for gap in (30.0, 20.0, 12.0):  # [m] to the standing car's rear
+        mpc = LongitudinalMPC(config)
+        plan = mpc.solve(10.0, 0.0, 10.0, leaders=(Leader(gap, 0.0),))
+        a_min, j_max = {"solved": (config.accel_min, config.jerk_max),
+                        "firm": (config.firm_accel_min, config.firm_jerk_max),
+                        "emergency": (config.emergency_accel_min, config.emergency_jerk_max)}[plan.status]
+        assert np.abs(plan.j).max() <= j_max + 1e-9 and plan.a.min() >= a_min - 1e-9
+        assert plan.intrusion <= 0.0 and plan.s.max() < gap - config.emergency_gap
+        statuses.append(plan.status)
+    assert statuses == ["solved", "firm", "emergency"]
+
+
+def test_mpc_falls_in_behind_a_road_user_alongside_within_the_firm_bounds():
+    """A car moving in beside the ego (its rear level with the ego's front, a little faster): the same car straight
+    ahead would take the emergency bounds; alongside, the ego falls in behind braking within the firm bounds, and
+    its plan still ends behind the car's rear by the time the horizon ends."""
+    config = MPCConfig()
+    ahead = LongitudinalMPC(config).solve(6.0, 0.0, 8.0, leaders=(Leader(0.0, 6.3, 1.0),))
+    beside = Leader(0.0, 6.3, 1.0, alongside=True)
+    plan = LongitudinalMPC(config).solve(6.0, 0.0, 8.0, leaders=(beside,))
+    assert ahead.status == "emergency" and plan.status == "firm"
+    assert np.abs(plan.j).max() <= config.firm_jerk_max + 1e-9 and plan.a.min() >= config.firm_accel_min - 1e-9
+    assert plan.s[-1] < beside.positions(LongitudinalMPC(config).times[-1:])[0] - config.emergency_gap
 
 
 def test_unconstrained_mpc_matches_the_finite_horizon_lqr():
     """With no constraint binding, the MPC is the LQR of its own cost: (v, a) deviations from a constant
     reference and the jerk, solved backwards by the Riccati recursion; their first jerks agree (to OSQP's
     tolerance)."""
-    config = MPCConfig(accel_min=-9.0, accel_max=5.0, jerk_max=50.0, emergency_jerk_max=50.0,
-                       emergency_accel_min=-9.0)
+    config = MPCConfig(accel_min=-9.0, accel_max=5.0, jerk_max=50.0, firm_jerk_max=50.0, firm_accel_min=-9.0,
+                       emergency_jerk_max=50.0, emergency_accel_min=-9.0)
     mpc = LongitudinalMPC(config)
     h, n = config.step, config.horizon
     a_mat = np.array([[1.0, h], [0.0, 1.0]])  # (v, a)

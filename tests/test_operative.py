@@ -314,6 +314,24 @@ def test_gap_acceptance_of_the_overtaking_rule():
     env.close()
 
 
+def test_leaders_alongside_are_marked_for_the_firm_bounds():
+    """`RouteTraffic.leaders`: a road user in the ego's lane whose rear is ahead of its front is a leader ahead; one
+    moving in beside it (its rear level with the ego's front or behind, its centre ahead) is a leader alongside,
+    which the MPC falls in behind within the firm bounds; one in the other lane is no leader of this lane."""
+    env = suite.load("urban", "lane_change", task_kwargs={"decisions": True})
+    route = env.task.route_traffic
+    route.index = route.route_index(80.0)
+    route.seen = _seen([(6.0, 0.0, 5.0)])
+    (leader,), _ = route.leaders((0.0,))
+    assert leader.gap == pytest.approx(6.0) and not leader.alongside
+    route.seen = _seen([(-0.8, 0.2, 5.0)])  # rear 0.8 m behind the ego's front, centre 1.45 m ahead
+    (leader,), _ = route.leaders((0.0,))
+    assert leader.gap == 0.0 and leader.alongside
+    route.seen = _seen([(-0.8, 3.5, 5.0)])
+    assert route.leaders((0.0,))[0] == []
+    env.close()
+
+
 def test_the_autopilot_overtakes_a_slow_car_and_comes_back_centred():
     """The privileged autopilot (pedals) on the two-lane road: behind a road user slower than its cruise it moves
     one lane left (the quintic lane offset, pure pursuit following it), passes, and ends the episode centred in the

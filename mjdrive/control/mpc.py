@@ -31,8 +31,10 @@ of leader or mode) give a plan whose first acceleration is within about 0.2 m/s^
 the settings leave nothing to time (rho adapts every `adaptive_rho_interval` iterations, no time limit), and `reset`
 sets the solver up anew so every episode starts from the same state. Fallbacks: when the comfort envelope cannot
 keep the car behind a leader's rear by `emergency_gap` or before a stop point (e.g. a vehicle cutting in), the same
-programme is solved again with the emergency bounds, to convergence; if OSQP does not report a solution, the plan is a
-comfortable braking to rest (`MPCPlan.fallback`).
+programme is solved again, to convergence, with the firm bounds (harder braking, a jerk bound still near nuPlan's
+comfort limit), and if those cannot either, with the emergency bounds: a graded response, so that a cut-in that
+needs a little more than comfort gets a little more, not the full brake; if OSQP does not report a solution, the
+plan is a comfortable braking to rest (`MPCPlan.fallback`).
 """
 
 from __future__ import annotations
@@ -51,7 +53,7 @@ from mjdrive.config import Config, ConfigError, param
 INFINITY = osqp.ext_builtin.OSQP_INFTY  # OSQP's infinite bound (1e30)
 MODES = ("cruise", "follow", "stop")  # the plan's mode: the soft constraint that binds first (within BINDING)
 BINDING = 0.1  # [m]
-INTRUSION_TOLERANCE = 0.05  # [m] a comfort plan passing a stop point, or the emergency gap, by less needs no emergency
+INTRUSION_TOLERANCE = 0.05  # [m] a plan passing a stop point, or the emergency gap, by less needs no firmer bounds
 NO_LIMIT = 1e30  # [m] a position bound that never binds: OSQP_INFTY (OSQP leaves it out of its infeasibility checks)
 
 
@@ -64,11 +66,15 @@ class MPCConfig(Config):
     accel_min: float = param(-3.5, "comfort bound: strongest braking", "m/s^2", ge=-9.0, lt=0.0)
     accel_max: float = param(1.8, "comfort bound: strongest acceleration", "m/s^2", gt=0.0, le=5.0)
     jerk_max: float = param(2.5, "comfort bound on |jerk|", "m/s^3", gt=0.0, le=50.0)
-    emergency_accel_min: float = param(-8.0, "braking allowed when the comfort bounds cannot keep a gap", "m/s^2",
+    firm_accel_min: float = param(-5.0, "braking allowed when the comfort bounds cannot keep a gap (tried first)",
+                                  "m/s^2", ge=-10.0, lt=0.0)
+    firm_jerk_max: float = param(5.0, "|jerk| allowed then", "m/s^3", gt=0.0, le=200.0)
+    emergency_accel_min: float = param(-8.0, "braking allowed when the firm bounds cannot keep a gap either", "m/s^2",
                                        ge=-10.0, lt=0.0)
     emergency_jerk_max: float = param(25.0, "|jerk| allowed in an emergency", "m/s^3", gt=0.0, le=200.0)
     emergency_gap: float = param(1.5, "a comfort plan that comes closer than this to a leader's rear (or passes a "
-                                 "stop point) is solved again with the emergency bounds", "m", ge=0.0, le=10.0)
+                                 "stop point) is solved again with the firm bounds, and a firm one with the "
+                                 "emergency bounds", "m", ge=0.0, le=10.0)
     headway: float = param(1.5, "T: time gap to the leader", "s", ge=0.0, le=5.0)
     standstill_gap: float = param(4.0, "d0: gap to the leader at rest (bumper to bumper)", "m", ge=0.5, le=20.0)
     stop_decel: float = param(1.5, "b: the comfortable stopping profile's deceleration", "m/s^2", gt=0.1, le=5.0)
@@ -79,9 +85,18 @@ class MPCConfig(Config):
     slack_linear: float = param(1e2, "linear cost of a slack (an exact penalty)", "1/m", gt=0.0)
 
     def check(self) -> None:
-        if self.emergency_accel_min > self.accel_min or self.emergency_jerk_max < self.jerk_max:
-            raise ConfigError("the emergency bounds must contain the comfort bounds: emergency_accel_min <= "
-                              "accel_min and emergency_jerk_max >= jerk_max")
+        if not self.emergency_accel_min <= self.firm_accel_min <= self.accel_min or not (
+                self.jerk_max <= self.firm_jerk_max <= self.emergency_jerk_max):
+            raise ConfigError("each bound must contain the one before: emergency_accel_min <= firm_accel_min <= "
+                              "accel_min and jerk_max <= firm_jerk_max <= emergency_jerk_max")
+
+    def tier(self, level: int) -> tuple[float, float]:
+        """(strongest braking [m/s^2], |jerk| bound [m/s^3]) of TIERS[level]: comfort, firm, emergency."""
+        return ((self.accel_min, self.jerk_max), (self.firm_accel_min, self.firm_jerk_max),
+                (self.emergency_accel_min, self.emergency_jerk_max))[level]
+
+
+TIERS = ("solved", "firm", "emergency")  # a plan's status by the bounds it was solved within (else "fallback")
 
 
 ITERATION_BUDGET = 100  # OSQP iterations of a comfort solve: a real-time budget (see the module doc)
@@ -136,11 +151,15 @@ class OSQPSolver:
 @dataclass(frozen=True)
 class Leader:
     """The vehicle to follow: its rear bumper `gap` [m] ahead of the ego's front bumper, its speed along the
-    ego's path [m/s] and acceleration [m/s^2] (predicted constant, until it stands)."""
+    ego's path [m/s] and acceleration [m/s^2] (predicted constant, until it stands). `alongside`: its rear is not
+    ahead of the ego's front (a road user moving in beside it, a zipper's partner at a merge): the car falls in
+    behind it braking at most within the firm bounds (the emergency bounds could not put it behind a car beside it
+    in time either; they are for what is ahead)."""
 
     gap: float
     speed: float
     accel: float = 0.0
+    alongside: bool = False
 
     def positions(self, times: np.ndarray) -> np.ndarray:
         """Its rear bumper [m] (ego front now = 0) at `times` [s]."""
@@ -162,11 +181,12 @@ class MPCPlan:
     j: np.ndarray  # [m/s^3]
     slack: float  # [m] the largest violation of a soft constraint
     mode: str  # "cruise", "follow" or "stop": the constraint that binds first (cruise: none)
-    status: str  # "solved", "emergency" (solved with the emergency bounds) or "fallback" (OSQP failed)
+    status: str  # "solved", "firm" or "emergency" (solved with those bounds, TIERS) or "fallback" (OSQP failed)
     iterations: int
     intrusion: float = 0.0  # [m] how far it passes a stop point or comes within emergency_gap of a leader, less
-    #                         INTRUSION_TOLERANCE (> 0: solved again with the emergency bounds)
+    #                         INTRUSION_TOLERANCE (> 0: solved again with the firm bounds)
     converged: bool = True  # False: OSQP stopped at ITERATION_BUDGET (the plan still meets the hard bounds)
+    intrusion_ahead: float = 0.0  # [m] the same, leaders alongside left out (> 0 after the firm bounds: emergency)
 
     def accel_at(self, t: float, step: float) -> float:
         """The planned acceleration [m/s^2] t [s] from now (piecewise linear: constant jerk per step)."""
@@ -261,8 +281,9 @@ class LongitudinalMPC:
         self._l[: self._n_eq] = self._u[: self._n_eq] = 0.0
         self._l[self._rows_speed: self._rows_limit] = 0.0  # v_k >= 0 (the limit rows have no lower bound)
         self._l[self._rows_slack:] = 0.0
-        self._set_bounds(emergency=False)
+        self._set_bounds(0)
         self._initial = (self._q.copy(), self._l.copy(), self._u.copy())  # the vectors a solver is set up with
+        self._ahead = np.full(n, NO_LIMIT)  # [m] the follow bounds of the leaders ahead (not alongside)
         self.solver: OSQPSolver | None = None
         self.reset()
 
@@ -275,18 +296,17 @@ class LongitudinalMPC:
         """A fresh solver set up with the initial vectors (OSQP's scaling reads q at set-up; warm start and rho as
         after it): an episode's solves depend only on its inputs, not on the episodes before."""
         self._q[:], self._l[:], self._u[:] = self._initial
-        self._emergency = False
+        self._tier = 0
         self.solver = OSQPSolver(self._p, self._q, self._a, self._l, self._u, SOLVER_SETTINGS)
 
-    def _set_bounds(self, emergency: bool) -> None:
+    def _set_bounds(self, tier: int) -> None:
         c, n = self.config, self.config.horizon
-        a_min = c.emergency_accel_min if emergency else c.accel_min
-        j_max = c.emergency_jerk_max if emergency else c.jerk_max
+        a_min, j_max = c.tier(tier)
         self._l[self._rows_accel: self._rows_accel + n] = a_min
         self._u[self._rows_accel: self._rows_accel + n] = c.accel_max
         self._l[self._rows_jerk: self._rows_jerk + n] = -j_max
         self._u[self._rows_jerk: self._rows_jerk + n] = j_max
-        self._emergency = emergency
+        self._tier = tier
 
     def initial_accel(self, speed: float, accel: float) -> float:
         """The acceleration the plan starts from: `accel` within the comfort bounds, and no more braking than the
@@ -314,33 +334,38 @@ class LongitudinalMPC:
         self._l[0:3] = self._u[0:3] = (0.0, v0, a0)
         self._u[self._rows_stop: self._rows_stop + n] = NO_LIMIT if stop is None else stop
         follow = self._u[self._rows_follow: self._rows_follow + n]
-        follow[:] = NO_LIMIT
+        follow[:] = self._ahead[:] = NO_LIMIT
         for leader in leaders:
-            np.minimum(follow, leader.positions(self.times[1:]) - c.standstill_gap, out=follow)
-        if self._emergency:
-            self._set_bounds(emergency=False)
-        plan = self._solve()
-        if plan is not None and plan.intrusion > 0.0:
-            self._set_bounds(emergency=True)
-            emergency = self._solve(emergency=True)
-            plan = emergency if emergency is not None else plan
+            bound = leader.positions(self.times[1:]) - c.standstill_gap
+            np.minimum(follow, bound, out=follow)
+            if not leader.alongside:
+                np.minimum(self._ahead, bound, out=self._ahead)
+        if self._tier:
+            self._set_bounds(0)
+        plan = self._solve(0)
+        if plan is not None and plan.intrusion > 0.0:  # firmer bounds while a plan moves into a leader or past a stop
+            self._set_bounds(1)
+            plan = self._solve(1) or plan
+            if plan.intrusion_ahead > 0.0:
+                self._set_bounds(2)
+                plan = self._solve(2) or plan
         return plan if plan is not None else self.fallback(v0, a0)
 
-    def _solve(self, emergency: bool = False) -> MPCPlan | None:
-        budget = SOLVER_SETTINGS["max_iter"] if emergency else min(ITERATION_BUDGET, SOLVER_SETTINGS["max_iter"])
+    def _solve(self, tier: int) -> MPCPlan | None:
+        budget = min(ITERATION_BUDGET, SOLVER_SETTINGS["max_iter"]) if tier == 0 else SOLVER_SETTINGS["max_iter"]
         solution, iterations, converged = self.solver.solve(self._q, self._l, self._u, budget)
         if solution is None:
             return None
         n = self.config.horizon
         states, jerks = np.empty((n + 1, 3)), np.empty(n)
         c = self.config
-        slack, mode, intrusion = plan_within_bounds(
+        slack, mode, intrusion, intrusion_ahead = plan_within_bounds(
             self._l[0:3], solution[self._nx: self._nx + n], c.step, self._l[self._rows_accel],
             self._u[self._rows_accel], self._u[self._rows_jerk], self._u[self._rows_stop: self._rows_stop + n],
-            self._u[self._rows_follow: self._rows_follow + n], c.headway, c.standstill_gap - c.emergency_gap,
-            states, jerks)
+            self._u[self._rows_follow: self._rows_follow + n], self._ahead, c.headway,
+            c.standstill_gap - c.emergency_gap, states, jerks)
         return MPCPlan(states[:, 0], states[:, 1], states[:, 2], jerks, slack, MODES[mode],
-                       "emergency" if emergency else "solved", iterations, intrusion, converged)
+                       TIERS[tier], iterations, intrusion, converged, intrusion_ahead)
 
     def fallback(self, speed: float, accel: float) -> MPCPlan:
         """Braking to rest at the comfort bound, the jerk bound permitting: the plan when OSQP gives none."""
@@ -358,17 +383,18 @@ class LongitudinalMPC:
 
 
 @jit
-def plan_within_bounds(initial, jerks, h, a_min, a_max, j_max, stop, follow, headway, near, states, out):
+def plan_within_bounds(initial, jerks, h, a_min, a_max, j_max, stop, follow, ahead, headway, near, states, out):
     """A solution's jerks moved onto the hard bounds they exceed within OSQP's tolerance (about 1e-3 of the
     problem's scale) and the states (s, v, a) integrated exactly from `initial` into `states` (N + 1, 3), the jerks
     into `out` (N,): a plan that meets its bounds and its dynamics to rounding. Returns its largest violation [m]
     of the position constraints s_k <= stop_k and s_k + headway v_k <= follow_k; its mode (an index of MODES: the
     constraint within BINDING of binding at the earliest step; cruise if none); and its intrusion [m]: how far it
     passes a stop point or comes nearer than follow_k + `near` (a leader's rear less the emergency gap), counted
-    from where the car is when it is past either already (standing there is no intrusion)."""
+    from where the car is when it is past either already (standing there is no intrusion); and the same intrusion
+    with `ahead` (the follow bounds of the leaders ahead only) for `follow`."""
     s, v, a = initial[0], initial[1], initial[2]
     states[0, 0], states[0, 1], states[0, 2] = s, v, a
-    slack, mode, intrusion = 0.0, 0, -np.inf
+    slack, mode, intrusion, intrusion_ahead = 0.0, 0, -np.inf, -np.inf
     for k in range(len(jerks)):
         j = min(max(jerks[k], -j_max), j_max)
         j = min(max(j, (a_min - a) / h), (a_max - a) / h)
@@ -379,6 +405,7 @@ def plan_within_bounds(initial, jerks, h, a_min, a_max, j_max, stop, follow, hea
         slack = max(slack, -stop_room, -follow_room)
         # what the plan itself moves into (a point already behind the bumper counts from where the car is)
         intrusion = max(intrusion, s - max(stop[k], 0.0), s - max(follow[k] + near, 0.0))
+        intrusion_ahead = max(intrusion_ahead, s - max(stop[k], 0.0), s - max(ahead[k] + near, 0.0))
         if mode == 0 and min(stop_room, follow_room) < BINDING:
             mode = 2 if stop_room <= follow_room else 1
-    return slack, mode, intrusion - INTRUSION_TOLERANCE
+    return slack, mode, intrusion - INTRUSION_TOLERANCE, intrusion_ahead - INTRUSION_TOLERANCE

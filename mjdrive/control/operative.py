@@ -99,7 +99,7 @@ class OperativeStatus:
 
     decision: str = DRIVE  # as applied (after "follow the path" and the lanes available)
     mode: str = "cruise"  # the MPC's: cruise, follow, stop
-    solver: str = "solved"  # solved, emergency, fallback
+    solver: str = "solved"  # the MPC plan's status: solved, firm, emergency, fallback
     v_ref: float = 0.0  # [m/s]
     stop: float | None = None  # [m] ahead of the front bumper, the MPC's stop point
     offset: float = 0.0  # [m] the lateral offset tracked now

@@ -325,8 +325,9 @@ _OPERATIVE = _json_schema("mjdrive.OperativeStep", {
     "t": _number("s", "simulated time"), "route_s": _number("m", "the ego's distance along the route"),
     "route_offset": _number("m", "lateral offset from the route's centre line (+ = left)"),
     "decision": {"type": "string", "description": "the decision applied (tasks/decisions.py ACTIONS)"},
-    "mode": {"type": "string", "description": "the MPC's binding constraint: cruise, follow, stop, emergency"},
-    "solver": {"type": "string", "description": "OSQP's status of the last solve (or fallback)"},
+    "mode": {"type": "string", "description": "the MPC's binding constraint: cruise, follow, stop"},
+    "solver": {"type": "string", "description": "the bounds the plan was solved within (solved: comfort, "
+                                                 "firm, emergency) or fallback"},
     "throttle": _number("", "command, 0..1"), "steer": _number("", "command, -1..1 (+ = left)"),
     "brake": _number("", "command, 0..1"),
     "accel_command": _number("m/s^2", "the MPC's first acceleration"),

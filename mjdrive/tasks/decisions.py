@@ -186,7 +186,7 @@ class RouteTraffic:
             if inside.any():
                 k = np.flatnonzero(inside)[np.argmin(seen.ahead[inside])]
                 out.append(Leader(max(float(seen.ahead[k]), 0.0), max(float(seen.along[k]), 0.0),
-                                  float(seen.accel[k])))
+                                  float(seen.accel[k]), alongside=bool(seen.ahead[k] <= 0.0)))
             across = near & ~seen.aligned & now
             if across.any():
                 gap = max(float(seen.ahead[across].min()), 0.0)
@@ -306,7 +306,8 @@ class RouteTraffic:
         if active and (merging or near_line) and ego.path is not None:
             asked = traffic.give_way(ego)
             if math.isfinite(asked.leader_gap):  # merges: the zipper's leader
-                leaders.append(Leader(max(asked.leader_gap, 0.0), max(asked.leader_speed, 0.0)))
+                leaders.append(Leader(max(asked.leader_gap, 0.0), max(asked.leader_speed, 0.0),
+                                      alongside=asked.leader_gap <= 0.0))
             yielding = near_line and abs(asked.stop - stop) < SAME_LINE
         target = lanes[-1]
         lane_end = float(self.ends[k]) - (s + self.half_length) if target != 0.0 else None  # never past its end
