@@ -168,7 +168,8 @@ def test_mpc_answers_a_standing_obstacle_by_the_mildest_bounds_that_keep_the_gap
 def test_mpc_falls_in_behind_a_road_user_alongside_within_the_firm_bounds():
     """A car moving in beside the ego (its rear level with the ego's front, a little faster): the same car straight
     ahead would take the emergency bounds; alongside, the ego falls in behind braking within the firm bounds, and
-    its plan still ends behind the car's rear by the time the horizon ends."""
+    its plan still ends behind the car's rear by the time the horizon ends. A slower one alongside, and a stop
+    point that moves (a road user crossing), get the emergency bounds at once."""
     config = MPCConfig()
     ahead = LongitudinalMPC(config).solve(6.0, 0.0, 8.0, leaders=(Leader(0.0, 6.3, 1.0),))
     beside = Leader(0.0, 6.3, 1.0, alongside=True)
@@ -176,6 +177,12 @@ def test_mpc_falls_in_behind_a_road_user_alongside_within_the_firm_bounds():
     assert ahead.status == "emergency" and plan.status == "firm"
     assert np.abs(plan.j).max() <= config.firm_jerk_max + 1e-9 and plan.a.min() >= config.firm_accel_min - 1e-9
     assert plan.s[-1] < beside.positions(LongitudinalMPC(config).times[-1:])[0] - config.emergency_gap
+    # one the car closes on (slower than it) may take the emergency bounds, as may a stop point that moves
+    slower = LongitudinalMPC(config).solve(6.0, 0.0, 8.0, leaders=(Leader(0.0, 5.0, 0.0, alongside=True),))
+    assert slower.status == "emergency"
+    static = LongitudinalMPC(config).solve(10.0, 0.0, 10.0, stop=18.0)
+    moving = LongitudinalMPC(config).solve(10.0, 0.0, 10.0, stop=18.0, stop_moves=True)
+    assert static.status == "firm" and moving.status == "emergency"
 
 
 def test_unconstrained_mpc_matches_the_finite_horizon_lqr():

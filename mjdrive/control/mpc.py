@@ -152,9 +152,9 @@ class OSQPSolver:
 class Leader:
     """The vehicle to follow: its rear bumper `gap` [m] ahead of the ego's front bumper, its speed along the
     ego's path [m/s] and acceleration [m/s^2] (predicted constant, until it stands). `alongside`: its rear is not
-    ahead of the ego's front (a road user moving in beside it, a zipper's partner at a merge): the car falls in
-    behind it braking at most within the firm bounds (the emergency bounds could not put it behind a car beside it
-    in time either; they are for what is ahead)."""
+    ahead of the ego's front (a road user moving in beside it, a zipper's partner at a merge): while it is at least
+    as fast as the car, the car falls in behind it braking at most within the firm bounds (it pulls away; the
+    emergency bounds are for what the car closes on)."""
 
     gap: float
     speed: float
@@ -317,11 +317,12 @@ class LongitudinalMPC:
         return min(max(accel, c.accel_min, -v / c.step, -math.sqrt(2.0 * c.jerk_max * v)), c.accel_max)
 
     def solve(self, speed: float, accel: float, v_ref: np.ndarray | float, stop: float | None = None,
-              leaders: Sequence[Leader] = ()) -> MPCPlan:
+              leaders: Sequence[Leader] = (), stop_moves: bool = False) -> MPCPlan:
         """The plan from the current speed [m/s] and acceleration [m/s^2] (`initial_accel` of them) tracking the
         reference speeds v_ref [m/s] (a number, or one per step 1..N), never faster than them (a soft bound),
         the front bumper coming to rest at most `stop` [m] ahead (None: no stop) and keeping its gap to each of
-        `leaders`."""
+        `leaders`. `stop_moves`: the stop point comes towards the car (a road user crossing): a plan passing it
+        goes to the emergency bounds at once, as the firm plan's static point would be behind the truth."""
         c, n = self.config, self.config.horizon
         v0, a0 = max(speed, 0.0), self.initial_accel(speed, accel)
         ref = np.broadcast_to(np.asarray(v_ref, dtype=float), (n,)).copy()
@@ -338,15 +339,16 @@ class LongitudinalMPC:
         for leader in leaders:
             bound = leader.positions(self.times[1:]) - c.standstill_gap
             np.minimum(follow, bound, out=follow)
-            if not leader.alongside:
+            if not (leader.alongside and leader.speed >= v0):
                 np.minimum(self._ahead, bound, out=self._ahead)
         if self._tier:
             self._set_bounds(0)
         plan = self._solve(0)
         if plan is not None and plan.intrusion > 0.0:  # firmer bounds while a plan moves into a leader or past a stop
-            self._set_bounds(1)
-            plan = self._solve(1) or plan
-            if plan.intrusion_ahead > 0.0:
+            if not stop_moves:
+                self._set_bounds(1)
+                plan = self._solve(1) or plan
+            if stop_moves or plan.intrusion_ahead > 0.0:
                 self._set_bounds(2)
                 plan = self._solve(2) or plan
         return plan if plan is not None else self.fallback(v0, a0)

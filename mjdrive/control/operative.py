@@ -185,8 +185,9 @@ class OperativeLevel:
                                      c.lane_change_heading).duration
         return max(situation.speed, 1.0) * duration + 10.0
 
-    def _stop_point(self, situation: Situation, decision: str) -> float | None:
-        """[m] ahead of the front bumper: where the MPC must stop (None: nowhere)."""
+    def _stop_point(self, situation: Situation, decision: str) -> tuple[float | None, bool]:
+        """([m] ahead of the front bumper: where the MPC must stop (None: nowhere), whether that point is a road user
+        crossing ahead (it moves))."""
         front = situation.s + 0.5 * self.params.length
         points = []
         if situation.lane_end is not None:  # the end of a lane off the route's: never past it
@@ -203,7 +204,11 @@ class OperativeLevel:
                 points.append(self.stop_hold - front)
         else:
             self.stop_hold = None
-        return min(points) - STOP_MARGIN if points else None
+        if not points:
+            return None, False
+        nearest = min(points)
+        moving = situation.crossing is not None and nearest == situation.crossing - CROSSING_CLEARANCE
+        return nearest - STOP_MARGIN, moving
 
     def shortest_stop(self, speed: float) -> float:
         """[m] the shortest stop from `speed` [m/s] within the comfort envelope (its strongest braking at once):
@@ -226,7 +231,7 @@ class OperativeLevel:
         decision, offset, rate, offset_accel = self._offset(situation)
         v = max(situation.speed, 0.0)
         # longitudinal: the MPC from the current speed and the last commanded acceleration
-        stop = self._stop_point(situation, decision)
+        stop, stop_moves = self._stop_point(situation, decision)
         plan_ahead = status.plan.s[1:] if status.plan is not None else v * self.mpc.times[1:]
         v_ref = self.profile.speed(situation.s + plan_ahead)
         # approach a give-way line where the rules have the car wait, and the end of a lane off the route's, slowly
@@ -237,7 +242,7 @@ class OperativeLevel:
                 room = np.maximum(end - plan_ahead, 0.0)
                 v_ref = np.minimum(v_ref, np.sqrt(c.approach_speed**2 + 2.0 * c.curve_decel * room))
         start = time.perf_counter()
-        plan = self.mpc.solve(v, self.accel, v_ref, stop, situation.leaders)
+        plan = self.mpc.solve(v, self.accel, v_ref, stop, situation.leaders, stop_moves=stop_moves)
         solve_ms = 1e3 * (time.perf_counter() - start)
         self.accel = plan.accel_at(self.dt, self.mpc.config.step)
         throttle, brake = self.pedals(self.accel, situation.speed)
