@@ -189,25 +189,24 @@ class OperativeLevel:
         """([m] ahead of the front bumper: where the MPC must stop (None: nowhere), whether that point is a road user
         crossing ahead (it moves))."""
         front = situation.s + 0.5 * self.params.length
-        points = []
+        points = []  # (distance [m], whether the point moves)
         if situation.lane_end is not None:  # the end of a lane off the route's: never past it
-            points.append(situation.lane_end)
+            points.append((situation.lane_end, False))
         if situation.crossing is not None:  # a road user crossing ahead: stop short of it until it has gone
-            points.append(situation.crossing - CROSSING_CLEARANCE)
+            points.append((situation.crossing - CROSSING_CLEARANCE, True))
         if decision == STOP:
             if situation.stop is not None:
-                points.append(situation.stop)
+                points.append((situation.stop, False))
                 self.stop_hold = None
             else:
                 if self.stop_hold is None:  # where a comfortable braking from here ends, kept
                     self.stop_hold = front + self.braking_distance(situation.speed) + 0.5
-                points.append(self.stop_hold - front)
+                points.append((self.stop_hold - front, False))
         else:
             self.stop_hold = None
         if not points:
             return None, False
-        nearest = min(points)
-        moving = situation.crossing is not None and nearest == situation.crossing - CROSSING_CLEARANCE
+        nearest, moving = min(points)
         return nearest - STOP_MARGIN, moving
 
     def shortest_stop(self, speed: float) -> float:
