@@ -41,8 +41,8 @@ def test_observations_stay_in_their_bounds_and_repeat_with_the_seed(task):
             np.testing.assert_array_equal(a[name], b[name])
 
 
-def drive(task: str, seed: int, policy: str = "pure_pursuit"):
-    env = make_env("urban", task, random=seed)
+def drive(task: str, seed: int, policy: str = "pure_pursuit", **kwargs):
+    env = make_env("urban", task, random=seed, **kwargs)
     act = make_policy(policy, env, seed)
     observation, info = env.reset(seed=seed)
     rewards, scenarios = [], []
@@ -77,6 +77,12 @@ def test_a_driver_blind_to_traffic_collides_at_the_crossroad():
     assert collisions and len(collisions) < len(outcomes)
     for info, terms in collisions:
         assert terms["collision"] == -2.0 and not info["success"]
+    seed = next(seed for seed, (info, *_) in enumerate(outcomes) if info["collision"])
+    _, info, rewards, _, terms, _ = drive("crossroad", seed, "always_go", collision_reward=-7.5)
+    assert info["collision"] and terms["collision"] == -7.5  # the keyword sets the penalty, nothing else changes
+    default_rewards = outcomes[seed][1]
+    assert rewards[:-1] == default_rewards[:-1]
+    assert rewards[-1] - default_rewards[-1] == pytest.approx(-7.5 + 2.0)
 
 
 def test_the_always_go_driver_keeps_the_speed_limit_on_an_empty_road():

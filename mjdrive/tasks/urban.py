@@ -127,6 +127,8 @@ class UrbanConfig(DrivingConfig):
                                   "traffic lights, or one of the three drawn per episode (then the observation gains "
                                   "`junction`)", choices=(*CONTROLS, "random"))
     signals: SignalTiming = param(SignalTiming(), "the traffic lights' cycle (a dict of its keywords)")
+    collision_reward: float = param(COLLISION_REWARD, "reward of a collision, and of running a red light or a stop "
+                                    "sign (study 002 §5.1.4: -2)", ge=-100.0, le=0.0)
 
     def check(self) -> None:
         if self.road_users is not None and sum(self.road_users.values()) > 100:
@@ -425,12 +427,12 @@ class UrbanTask(DrivingTask):
         info["distance"] += float(np.hypot(x - x0, y - y0))
         info["average_speed"] = info["distance"] / info["elapsed_time"]
         speed, arrival = SPEED_REWARD * self.speed, ARRIVAL_REWARD * info["success"]
-        crash = COLLISION_REWARD * collision
+        crash = self.config.collision_reward * collision
         self.reward_terms = {"speed": speed, "arrival": arrival, "collision": crash}
         self._step_reward = speed + arrival + crash  # their sum, in this order
         if violation is not None and not self._ended:  # running a red light or a stop sign: as a collision
-            self.reward_terms["violation"] = COLLISION_REWARD
-            self._step_reward += COLLISION_REWARD
+            self.reward_terms["violation"] = self.config.collision_reward
+            self._step_reward += self.config.collision_reward
         info["episode_reward"] += self._step_reward
         self._ended = collision or arrived or off_route or violation is not None
         if self.decisions is not None:
