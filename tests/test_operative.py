@@ -358,3 +358,25 @@ def test_the_autopilot_overtakes_a_slow_car_and_comes_back_centred():
             assert 2.5 * 0.9 < max(offsets) < 2.5 * 1.1
     assert overtook == 2
     env.close()
+
+
+def test_a_lane_change_starts_only_into_a_gap_that_takes_the_car():
+    """`RouteTraffic.lanes_open`: the left lane is open on the two-lane road when it is empty, not with a car beside
+    the ego or closing in fast behind it; back in the left lane, the route's lane is open to the right only when it
+    has a gap (a "right" decision into a car is not made)."""
+    env = suite.load("urban", "lane_change", task_kwargs={"decisions": True})
+    route = env.task.route_traffic
+    s, speed, width = 80.0, 8.0, 3.5  # [m], [m/s], [m]
+    route.seen = _seen([])
+    assert route.lanes_open(s, speed, 0.0) == (True, False, True)  # no right neighbour on this road
+    route.seen = _seen([(-3.0, width, speed)])  # beside the ego in the left lane
+    assert route.lanes_open(s, speed, 0.0)[0] is False
+    route.seen = _seen([(-20.0, width, speed + 6.0)])  # 10.5 m behind in the left lane, 6 m/s faster
+    assert route.lanes_open(s, speed, 0.0)[0] is False
+    route.seen = _seen([(-40.0, width, speed)])  # far behind, as fast: room
+    assert route.lanes_open(s, speed, 0.0)[0] is True
+    route.seen = _seen([(-3.0, 0.0, speed)])  # in the left lane now, a car beside it in the route's lane
+    assert route.lanes_open(s, speed, width) == (False, False, False)
+    route.seen = _seen([])
+    assert route.lanes_open(s, speed, width) == (False, True, True)
+    env.close()

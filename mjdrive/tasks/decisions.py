@@ -14,7 +14,8 @@ moves to, ahead of it, or will within CUT_IN_TIME; their speed along the route a
 period; at merges, the vehicle traffic's zipper puts ahead of the ego), the nearest road user crossing a band
 (a point to stop before, not a leader to follow), whether the right-of-way rules would have it wait at the
 stop point now (`Traffic.give_way`: the car then approaches it slowly, whatever the decision), the lanes a
-lane change can reach and the end of a neighbour lane the car is in.
+lane change can reach now (there, going on, and with a gap that takes the car: `RouteTraffic.lanes_open`) and
+the end of a neighbour lane the car is in.
 """
 
 from __future__ import annotations
@@ -275,6 +276,23 @@ class RouteTraffic:
         reach = gap * v_pass / max(v_pass - v_gap, 0.5)  # [m] driven until the gap is beside the ego
         return "left" if reach + RETURN_MARGIN <= left_end else "keep"
 
+    def lanes_open(self, s: float, speed: float, target: float) -> tuple[bool, bool, bool]:
+        """(a lane change to the left may start now, one to the right may, the route's own lane takes the car back
+        now) for the ego at s [m] going `speed` [m/s] in (or moving to) the lane centred `target` [m] from the route.
+        A lane change starts where the lane it leads to is there, goes on LANE_CHANGE_ROOM, and takes the car now
+        (`lane_free`); back to the route's lane, near the end of the lane the car is in, as a zipper. Needs
+        `observe` first."""
+        k = self.route_index(s)
+        width = float(self.lane_width[k])
+        room = self.ends[k] - s > LANE_CHANGE_ROOM
+        if target != 0.0:
+            ending = float(self.ends[k]) - (s + self.half_length) < RETURN_RANGE
+            back_free = self.lane_free(0.0, speed, zipper=ending)
+            return False, target > 0.0 and back_free, back_free
+        left = self.left[k] is not None and room and self.lane_free(width, speed)
+        right = self.right[k] is not None and room and self.lane_free(-width, speed)
+        return left, right, True
+
     def lane_distance(self, s: float, offset: float) -> float:
         """[m] from a point `offset` [m] left of the route at s [m] to the nearer centre line of the route lane
         there and its same-direction neighbour on that side (a car overtaking is on the road)."""
@@ -311,10 +329,7 @@ class RouteTraffic:
             yielding = near_line and abs(asked.stop - stop) < SAME_LINE
         target = lanes[-1]
         lane_end = float(self.ends[k]) - (s + self.half_length) if target != 0.0 else None  # never past its end
-        room = self.ends[k] - s > LANE_CHANGE_ROOM
-        left = target == 0.0 and self.left[k] is not None and room
-        right = target > 0.0 or (target == 0.0 and self.right[k] is not None and room)
-        back_free = target == 0.0 or self.lane_free(0.0, speed, zipper=lane_end < RETURN_RANGE)
+        left, right, back_free = self.lanes_open(s, speed, target)
         return Situation(s, rear_s, rear_lateral, heading_error, speed, operative_decision(decision, scenario),
                          active, stop, tuple(leaders), float(self.lane_width[k]), left, right, lane_end, crossing,
                          back_free, yielding)
