@@ -380,3 +380,41 @@ def test_a_lane_change_starts_only_into_a_gap_that_takes_the_car():
     route.seen = _seen([])
     assert route.lanes_open(s, speed, width) == (False, True, True)
     env.close()
+
+
+def test_the_road_users_beyond_the_look_window_are_left_out_and_the_rest_projected_where_they_are():
+    """`RouteTraffic.observe` projects the road users within LOOK_BEHIND behind and LOOK_AHEAD ahead of the ego onto
+    the route (the same place as a projection onto the whole route) and leaves out the others (a projection onto
+    a window puts them on its end, where they could seem to be in a lane beside the ego)."""
+    from mjdrive.tasks.decisions import LOOK_AHEAD, LOOK_BEHIND
+
+    env = suite.load("urban", "concatenated", task_kwargs={"decisions": True, "random": 0})
+    env.reset()
+    for _ in range(80):  # onto the two-lane road
+        env.step(0)
+    task = env.task
+    route, traffic, s = task.route_traffic, task.traffic, task.route_s
+    route.observe(s, traffic, track=False)
+    full_s, full_d = route.frame(traffic.positions()[traffic.present], full=True)
+    inside = (full_s > s - LOOK_BEHIND + 1.0) & (full_s < s + LOOK_AHEAD - 1.0)
+    assert 0 < inside.sum() < len(full_s) - 2  # road users on both sides of the edge: the check means something
+    front = s + route.half_length
+    seen_s = route.seen.centre + front
+    for route_s, offset in zip(full_s[inside], full_d[inside], strict=True):
+        k = np.argmin(np.abs(seen_s - route_s) + np.abs(route.seen.offset - offset))
+        assert seen_s[k] == pytest.approx(route_s, abs=1e-6) and route.seen.offset[k] == pytest.approx(offset, abs=1e-6)
+    assert len(seen_s) <= ((full_s > s - LOOK_BEHIND) & (full_s < s + LOOK_AHEAD)).sum()
+    env.close()
+
+
+def test_a_road_user_behind_going_the_other_way_is_not_the_gap_behind():
+    """`RouteTraffic.lane_gaps`: the road user behind the ego in a lane's band is the nearest going the route's way
+    (one going the other way, e.g. crossing behind, does not close in)."""
+    env = suite.load("urban", "lane_change", task_kwargs={"decisions": True})
+    route = env.task.route_traffic
+    seen = _seen([(-12.0, 3.5, -6.0), (-20.0, 3.5, 9.0)])
+    route.seen = seen._replace(aligned=np.array([False, True]))
+    _, _, behind, speed = route.lane_gaps(3.5)
+    assert behind == pytest.approx(11.0) and speed == 9.0
+    assert not route.lane_free(3.5, 4.0)  # 11 m ahead of a car 5 m/s faster
+    env.close()

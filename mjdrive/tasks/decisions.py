@@ -41,7 +41,7 @@ SCENARIO_ACTIONS = {LANE_CHANGE: {"keep": DRIVE, "drive": DRIVE, "left": LEFT, "
                     "merge": {"drive": DRIVE, "stop": STOP}}
 BAND_MARGIN = 0.4  # [m] beyond the ego's half width: a road user this close to the lane's band is in it
 LOOK_AHEAD = 100.0  # [m] leaders farther ahead along the route are left out
-LOOK_BEHIND = 15.0  # [m] road users farther behind are left out of the projection
+LOOK_BEHIND = 60.0  # [m] road users farther behind are left out (a lane change's gap acceptance looks this far)
 MAX_LEADER_ACCEL = 8.0  # [m/s^2] bound on a leader's measured acceleration (a respawned slot jumps)
 LANE_CHANGE_ROOM = 70.0  # [m] a lane change starts only where the lane it leads to goes on this far
 MERGE_RANGE = 60.0  # [m] the zipper's leader (and whether to yield) is asked for within this distance
@@ -157,12 +157,15 @@ class RouteTraffic:
                         MAX_LEADER_ACCEL)
         if track:
             self._speed[near], self._generation[near] = along, generation
+        # beyond the window the projection sits on its end, its offset meaningless: those road users are left out
+        k = np.flatnonzero((route_s > s - LOOK_BEHIND) & (route_s < s + LOOK_AHEAD))
+        route_s, offset, along, accel, c, sn, half = route_s[k], offset[k], along[k], accel[k], c[k], sn[k], half[k]
         half_long = c * half[:, 0] + sn * half[:, 1]  # [m] the footprint's extent along the route
         front = s + self.half_length
         self.seen = Seen(route_s - half_long - front, route_s - front, s - self.half_length - (route_s + half_long),
                          offset, sn * half[:, 0] + c * half[:, 1], along, accel,
-                         traffic.speeds()[near] * np.sin(rel_yaw), np.cos(rel_yaw) > ALIGNED,
-                         traffic.indicators()[near])
+                         traffic.speeds()[near[k]] * np.sin(rel_yaw[k]), np.cos(rel_yaw[k]) > ALIGNED,
+                         traffic.indicators()[near[k]])
 
     def in_band(self, centre: float, ahead_time: float = 0.0) -> np.ndarray:
         """Which of the observed road users overlap the band of the lane centred `centre` [m] from the route, now
@@ -196,14 +199,14 @@ class RouteTraffic:
 
     def lane_gaps(self, centre: float) -> tuple[float, float, float, float]:
         """(gap ahead [m], its speed [m/s], gap behind [m], its speed [m/s]) of the nearest observed road users
-        before and after the ego in the band of the lane centred `centre` [m]; a road user beside the ego has gap
-        0 both ways; inf and 0 where there is none."""
+        before and after the ego in the band of the lane centred `centre` [m] (the one after going the route's way);
+        a road user beside the ego has gap 0 both ways; inf and 0 where there is none."""
         ahead, behind, along = self.seen.ahead, self.seen.behind, self.seen.along
         band = self.in_band(centre)
         beside = band & (ahead <= 0.0) & (behind <= 0.0)
         if beside.any():
             return 0.0, float(along[beside][0]), 0.0, float(along[beside][0])
-        front, back = band & (ahead > 0.0), band & (behind > 0.0)
+        front, back = band & (ahead > 0.0), band & self.seen.aligned & (behind > 0.0)
         k_front = np.flatnonzero(front)[np.argmin(ahead[front])] if front.any() else None
         k_back = np.flatnonzero(back)[np.argmin(behind[back])] if back.any() else None
         return (float(ahead[k_front]) if k_front is not None else math.inf,
