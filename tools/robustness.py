@@ -380,6 +380,7 @@ def cases() -> list[Case]:
         c("suite.load", "urban/crossroad opendrive='four_way'", "only urban/opendrive takes it", _load("urban", "crossroad", opendrive="four_way")),
         c("suite.load", "urban/crossroad junction_control='roundabout'", "must be one of 'give_way', 'stop', 'lights', 'random'", _load("urban", "crossroad", junction_control="roundabout")),
         c("suite.load", "urban/crossroad signals={'amber': 0}", "signals.amber=0: must be >= 1", _load("urban", "crossroad", signals={"amber": 0})),
+        c("suite.load", "urban/crossroad collision_reward=5", "collision_reward=5: must be >= -100 and <= 0", _load("urban", "crossroad", collision_reward=5)),
         c("python -m tools.urban_traffic", "python -m tools.urban_traffic --map '{order: [bridge]}'", "argument --map: --map.order=['bridge']: element 'bridge' is not one of", _tool("urban_traffic", "--map", "{order: [bridge]}")),
         c("suite.load", "roundabout/d999", "unknown task roundabout/d999", _load("roundabout", "d999")),
         c("suite.load", "roundabout/d21", "did you mean roundabout/d210?", _load("roundabout", "d21")),
