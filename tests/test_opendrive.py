@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 import math
+import os
 import subprocess
 import sys
 
@@ -250,3 +251,17 @@ def test_stop_signs_on_an_imported_junction_hold_traffic_and_the_autopilot(tmp_p
         before = now
     assert overlaps == 0 and traffic.stats["stop_sign_violations"] == 0
     assert passed >= 3  # the minor road still flows through its stop signs
+
+
+def test_an_imported_map_is_the_same_in_every_process():
+    """The lane graph of an imported map does not depend on the process (pyxodr hands the successors over as a set,
+    whose order follows the objects' hashes): two interpreters with other hash seeds build the same successors,
+    junction entries and give-way lines, so traffic on it repeats with its seed."""
+    code = ("import hashlib; from mjdrive.assets import MAPS_DIR; from mjdrive.roads.opendrive import read_opendrive; "
+            "rm = read_opendrive(MAPS_DIR / 'roundabout.xodr'); "
+            "print(hashlib.sha256(repr((rm.successors, rm.junction_entries, rm.give_way, "
+            "[lane.priority for lane in rm.lanes])).encode()).hexdigest())")
+    digests = {subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                              env={**os.environ, "PYTHONHASHSEED": str(seed)}).stdout.strip()
+               for seed in (1, 2, 3)}
+    assert len(digests) == 1 and len(next(iter(digests))) == 64

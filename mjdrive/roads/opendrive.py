@@ -118,7 +118,7 @@ def _apply_ranks(rm: RoadMap, ranks: dict[str, dict[str, int]], road_of: dict[in
         if lane.in_junction or index not in road_of:
             continue
         entered = {junction_of[j] for j in rm.successors[index] if j in junction_of}
-        for junction in entered & ranks.keys():
+        for junction in sorted(entered & ranks.keys()):  # sorted: a set's order changes between processes
             rank = ranks[junction].get(road_of[index])
             if rank is None:
                 continue
@@ -176,10 +176,9 @@ def read_opendrive(path: str | os.PathLike, name: str | None = None) -> RoadMap:
             junctions.setdefault(junction, []).append(index)
     if not ids:
         raise ConfigError(f"opendrive={label!r}: no driving lane in the file")
-    for key, index in ids.items():
-        for successor in successors[key]:
-            if successor in ids:
-                rm.connect(index, ids[successor])
+    for key, index in ids.items():  # pyxodr's successors are a set (its order changes between processes): ours, sorted
+        for successor in sorted(ids[s] for s in successors[key] if s in ids):
+            rm.connect(index, successor)
     for section in by_section.values():  # the lane one step nearer the reference line is the left neighbour
         for lane_id, index in section.items():
             inner = section.get(lane_id - int(np.sign(lane_id)))
