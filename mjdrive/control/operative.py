@@ -85,7 +85,7 @@ class Situation:
     stop: float | None = None  # [m] front bumper to the active scenario's stop point (None: none ahead)
     leaders: Sequence[Leader] = ()  # in the lane the car is in and the one it moves to
     lane_width: float = 3.5  # [m] of the lane a lane change moves by
-    left_lane: bool = False  # a lane change to the left may start now (the lane is there and has a gap for the car)
+    left_lane: bool = False  # a "left" decision may start a lane change now (the lane is there and takes the car)
     right_lane: bool = False  # ... to the right (back towards the route's lane, or a right neighbour)
     lane_end: float | None = None  # [m] front bumper to the end of the lane the car is in (off the route's lane)
     crossing: float | None = None  # [m] front bumper to a road user crossing its lane ahead (None: none)

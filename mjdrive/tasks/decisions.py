@@ -279,21 +279,22 @@ class RouteTraffic:
         reach = gap * v_pass / max(v_pass - v_gap, 0.5)  # [m] driven until the gap is beside the ego
         return "left" if reach + RETURN_MARGIN <= left_end else "keep"
 
-    def lanes_open(self, s: float, speed: float, target: float) -> tuple[bool, bool, bool]:
+    def lanes_open(self, s: float, speed: float, target: float, decision: str | None = None) -> tuple[bool, bool, bool]:
         """(a lane change to the left may start now, one to the right may, the route's own lane takes the car back
         now) for the ego at s [m] going `speed` [m/s] in (or moving to) the lane centred `target` [m] from the route.
         A lane change starts where the lane it leads to is there, goes on LANE_CHANGE_ROOM, and takes the car now
-        (`lane_free`); back to the route's lane, near the end of the lane the car is in, as a zipper. Needs
+        (`lane_free`); back to the route's lane, near the end of the lane the car is in, as a zipper. `decision`
+        (the operative level's): only the side it asks for is checked (the other is False); None: both. Needs
         `observe` first."""
         k = self.route_index(s)
-        width = float(self.lane_width[k])
-        room = self.ends[k] - s > LANE_CHANGE_ROOM
         if target != 0.0:
             ending = float(self.ends[k]) - (s + self.half_length) < RETURN_RANGE
             back_free = self.lane_free(0.0, speed, zipper=ending)
             return False, target > 0.0 and back_free, back_free
-        left = self.left[k] is not None and room and self.lane_free(width, speed)
-        right = self.right[k] is not None and room and self.lane_free(-width, speed)
+        width = float(self.lane_width[k])
+        room = self.ends[k] - s > LANE_CHANGE_ROOM
+        left = decision in (None, LEFT) and self.left[k] is not None and room and self.lane_free(width, speed)
+        right = decision in (None, RIGHT) and self.right[k] is not None and room and self.lane_free(-width, speed)
         return left, right, True
 
     def lane_distance(self, s: float, offset: float) -> float:
@@ -332,7 +333,8 @@ class RouteTraffic:
             yielding = near_line and abs(asked.stop - stop) < SAME_LINE
         target = lanes[-1]
         lane_end = float(self.ends[k]) - (s + self.half_length) if target != 0.0 else None  # never past its end
-        left, right, back_free = self.lanes_open(s, speed, target)
-        return Situation(s, rear_s, rear_lateral, heading_error, speed, operative_decision(decision, scenario),
+        applied = operative_decision(decision, scenario)
+        left, right, back_free = self.lanes_open(s, speed, target, applied)
+        return Situation(s, rear_s, rear_lateral, heading_error, speed, applied,
                          active, stop, tuple(leaders), float(self.lane_width[k]), left, right, lane_end, crossing,
                          back_free, yielding)
