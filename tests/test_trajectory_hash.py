@@ -25,10 +25,11 @@ GOLDEN = {  # (domain, task, policy): hash of STEPS steps from FIRST_SEED, recor
     # gridlock of issue 44) and a vehicle standing first at its give-way line counts as arriving now at equal ranks;
     # study 000's roundabouts keep their values; re-recorded again when each piece of a chain kept its own traffic
     # (vehicles leave at the piece borders), courteous vehicles opened gaps within 60 m of a merge point (was 40 m:
-    # the two-lane road's 40 m taper) and the autopilot overtook on the two-lane road
-    ("urban", "concatenated", "autopilot"): "6a34b84e43286314",
+    # the two-lane road's 40 m taper) and the autopilot overtook on the two-lane road; and again when a yielding
+    # vehicle counted a priority agent's time to a crossing with the acceleration it may take (`conflicts.reach_time`)
+    ("urban", "concatenated", "autopilot"): "dc6e6a007bf98dbc",
     ("urban", "lane_change", "always_go"): "d558e82f58989ae1",
-    ("urban", "crossroad", "always_go"): "bd76e9c3647c2655",
+    ("urban", "crossroad", "always_go"): "6a06776b25ff6708",
     ("urban", "merge", "autopilot"): "fc5b55b5642b788e",
     ("waypoints", "four_routes", "pure_pursuit"): "0d1c9d13db39c8c2",
 }

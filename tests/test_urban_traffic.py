@@ -145,6 +145,37 @@ def test_the_minor_road_gives_way_at_the_crossroad():
     assert order == [1, 0]
 
 
+def test_a_priority_vehicle_that_may_speed_up_is_not_cut_off():
+    """A minor-road car standing at its give-way line, a main-road motorcycle rolling at 2 m/s 30 m before the zone
+    (at that pace 10 s away) that speeds up to its 8 m/s: the car counts the motorcycle's time to the zone with the
+    acceleration it may take (`conflicts.reach_time`), so it waits, and the motorcycle never has to brake for it
+    (judged at its present pace, the car went first and the motorcycle braked at 2.3 m/s^2)."""
+    composed = concatenated(order=("crossroad",))
+    rm = composed.road_map
+    traffic = urban_traffic(composed, counts={"car": 1, "motorcycle": 1}, config=QUIET)
+    traffic.reset(np.random.default_rng(0))
+    traffic.remove_all()
+    traffic.place(0, [lane(rm, "crossroad/approach_in_0")], 45.5, 0.0, intentions={"crossroad": STRAIGHT})
+    traffic.place(1, [lane(rm, "crossroad/left_in_0")], 20.0, 2.0, desired_speed=8.0,
+                  intentions={"crossroad": STRAIGHT})
+    crossing = {lane(rm, "crossroad/approach->straight_0"), lane(rm, "crossroad/left->right_0")}
+    order: list[int] = []
+    braking = [0.0]  # [m/s^2] the motorcycle's hardest
+
+    def note():
+        for row in (0, 1):
+            if int(traffic.vehicles.path[row, 0]) in crossing and row not in order:
+                order.append(row)
+        if traffic.vehicles.active[1]:
+            braking[0] = min(braking[0], float(traffic.vehicles.accel[1]))
+        present = traffic.present
+        assert not len(overlapping_pairs(traffic.poses()[present], traffic.half_size[present]))
+
+    run(traffic, 20.0, note)
+    assert order == [1, 0]
+    assert braking[0] > -0.5
+
+
 def free_run(traffic: Traffic, seconds: float) -> tuple[int, float, dict]:
     """Overlapping substeps, the longest stop [s] of a vehicle not queued (`Traffic.queued`), and where vehicles
     left the map."""

@@ -32,6 +32,7 @@ STANDING_ROOM = 0.5  # [m] a merging vehicle goes ahead of a standing one behind
 AT_LINE = 3.0  # [m] a waiting vehicle this close to its give-way line is first in line
 TURN_WAIT = 3.0  # [s] a priority vehicle first in line this long gets its turn
 CLAIM_DECEL = 4.0  # [m/s^2] a priority vehicle stops for a vehicle past its patience if it can at this braking
+PRIORITY_ACCEL = 2.5  # [m/s^2] a priority agent may speed up this hard toward a zone (the quickest kind's IDM a)
 
 
 class ApproachTable(NamedTuple):
@@ -117,6 +118,18 @@ def can_stop(v: float, to_line: float) -> bool:
         v < HELD_SPEED and to_line > -COMMITTED)
 
 
+@helper
+def reach_time(distance: float, v: float, v_top: float) -> float:
+    """[s] to cover `distance` [m] from speed `v` [m/s] speeding up at PRIORITY_ACCEL to at most `v_top` [m/s]: the
+    soonest a priority agent free to go (not held) may arrive, as it may speed up at any moment."""
+    v = maximum(v, 0.0)
+    v_top = maximum(v_top, v)
+    d_accel = (v_top * v_top - v * v) / (2.0 * PRIORITY_ACCEL)  # [m] to reach v_top
+    if distance <= d_accel or v_top <= 0.0:
+        return (np.sqrt(v * v + 2.0 * PRIORITY_ACCEL * maximum(distance, 0.0)) - v) / PRIORITY_ACCEL
+    return (v_top - v) / PRIORITY_ACCEL + (distance - d_accel) / v_top
+
+
 @inline
 def zone_state(agents, vehicles, approaches, c, control):
     """Every agent (A,) (`Agents`: the vehicles, then the ego, which waits as they do (`Traffic.ego_waited`) but is
@@ -147,9 +160,14 @@ def zone_state(agents, vehicles, approaches, c, control):
     near = np.empty((n_a, n_r), dtype=np.bool_)
     on_lane = np.empty((n_r, n_a), dtype=np.int64)
     n_on = np.zeros(n_r, dtype=np.int64)
+    top_any = 0.0  # [m/s] the fastest vehicle's desired speed: the ego's top speed as the traffic judges it
+    for j in range(nv):
+        if vehicles.active[j]:
+            top_any = maximum(top_any, vehicles.v0[j])
     for a in range(n_a):
         half = len_a[a] / 2
         pace = maximum(v_a[a], c.merge_speed)
+        v_top = vehicles.v0[a] if a < nv else top_any  # [m/s]
         for r in range(n_r):
             off_other = offset_a[a, ap.other[r]]
             if not np.isfinite(off_other):
@@ -170,8 +188,8 @@ def zone_state(agents, vehicles, approaches, c, control):
             ins = on_other and f_o > entered and rear_o < ap.o_out[r]
             inside[a, r] = ins
             before = on_other and not ins and f_o <= ap.o_in[r]
-            if before:
-                ttz[a, r] = (ap.o_in[r] - f_o) / pace
+            if before:  # at its present pace (counted at merge_speed at least), or sooner if it speeds up
+                ttz[a, r] = minimum((ap.o_in[r] - f_o) / pace, reach_time(ap.o_in[r] - f_o, v_a[a], v_top))
             elif ins:
                 ttz[a, r] = 0.0
             else:
