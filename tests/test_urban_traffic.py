@@ -11,6 +11,7 @@ from mjdrive import roads
 from mjdrive.roads.conflicts import conflict_zones
 from mjdrive.roads.urban import concatenated
 from mjdrive.traffic import Traffic, TrafficConfig, overlapping_pairs
+from mjdrive.traffic.conflicts import PRIORITY_ACCEL, reach_time
 from mjdrive.traffic.intentions import AFTER, BEFORE, LANE_CHANGE, LEFT, RIGHT, ROUNDABOUT, STRAIGHT, TAKE_WAY, YIELD
 from mjdrive.traffic.urban import URBAN_CONFIG, piece_exits, urban_traffic
 
@@ -146,10 +147,11 @@ def test_the_minor_road_gives_way_at_the_crossroad():
 
 
 def test_a_priority_vehicle_that_may_speed_up_is_not_cut_off():
-    """A minor-road car standing at its give-way line, a main-road motorcycle rolling at 2 m/s 30 m before the zone
-    (at that pace 10 s away) that speeds up to its 8 m/s: the car counts the motorcycle's time to the zone with the
-    acceleration it may take (`conflicts.reach_time`), so it waits, and the motorcycle never has to brake for it
-    (judged at its present pace, the car went first and the motorcycle braked at 2.3 m/s^2)."""
+    """A minor-road car standing at its give-way line, a main-road motorcycle rolling at 2 m/s more than 30 m
+    before the zone (counted at `merge_speed`, over 10 s away) that speeds up to its 8 m/s: the car counts the
+    motorcycle's time to the zone with the acceleration it may take (`conflicts.reach_time`), so it waits, and the
+    motorcycle never has to brake for it (judged at its present pace, the car went first and the motorcycle braked
+    at 2.3 m/s^2)."""
     composed = concatenated(order=("crossroad",))
     rm = composed.road_map
     traffic = urban_traffic(composed, counts={"car": 1, "motorcycle": 1}, config=QUIET)
@@ -174,6 +176,19 @@ def test_a_priority_vehicle_that_may_speed_up_is_not_cut_off():
     run(traffic, 20.0, note)
     assert order == [1, 0]
     assert braking[0] > -0.5
+
+
+def test_reach_time_is_the_kinematics_of_a_start_at_the_priority_acceleration():
+    """`conflicts.reach_time`: from rest, d = a t^2 / 2; at its top speed, d / v; speeding up to it, then cruising
+    (the time to the top speed plus the rest of the way at it)."""
+    a = PRIORITY_ACCEL
+    assert reach_time(20.0, 0.0, 100.0) == pytest.approx(np.sqrt(2 * 20.0 / a))
+    assert reach_time(30.0, 10.0, 10.0) == pytest.approx(3.0)
+    to_top = (8.0 - 2.0) / a  # [s]
+    run_up = (8.0**2 - 2.0**2) / (2 * a)  # [m]
+    assert reach_time(40.0, 2.0, 8.0) == pytest.approx(to_top + (40.0 - run_up) / 8.0)
+    assert reach_time(0.0, 3.0, 8.0) == 0.0
+    assert reach_time(40.0, 2.0, 8.0) < 40.0 / 3.0  # sooner than at the merge_speed floor of its pace
 
 
 def free_run(traffic: Traffic, seconds: float) -> tuple[int, float, dict]:
