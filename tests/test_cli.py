@@ -84,12 +84,16 @@ def test_bench_of_the_operative_level_measures_its_cost(tmp_path):
     pedal = table_rows(done.stdout, "throttle, steer, brake")
     solve = table_rows(done.stdout, "MPC solve (OSQP)")
     level = table_rows(done.stdout, "operative level per control period (MPC, LQR, pedals)")
-    assert len(decision) == len(pedal) == len(solve) == len(level) == 1, done.stdout
+    osqp = table_rows(done.stdout, "its OSQP calls, each (vectors in, C solve, solution out)")
+    assert len(decision) == len(pedal) == len(solve) == len(level) == len(osqp) == 1, done.stdout
     assert decision[0][1] == "0.5" and pedal[0][1] == "0.1"  # [s] env steps
     assert float(decision[0][4].rstrip("x")) > 0 and float(decision[0][3]) > 0 and float(pedal[0][3]) > 0
     median, p99 = float(solve[0][1]), float(solve[0][2])
     assert 0 < median <= p99 and 0 < float(level[0][1]) <= float(level[0][2])
     assert float(level[0][1]) >= median  # the level's step includes its MPC solve
+    assert 0 < float(osqp[0][1]) <= median  # ... and the solve its OSQP call
+    share = re.search(r"The OSQP calls take (\d+)% of the MPC's solve time", done.stdout)
+    assert share and 0 < int(share.group(1)) < 100, done.stdout
 
 
 def test_train_a_few_hundred_steps_writes_a_run_folder_that_eval_reads(tmp_path):
