@@ -10,7 +10,7 @@ import pytest
 from mjdrive import roads
 from mjdrive.roads.conflicts import conflict_zones
 from mjdrive.roads.urban import concatenated
-from mjdrive.traffic import Traffic, TrafficConfig, overlapping_pairs
+from mjdrive.traffic import EgoState, Traffic, TrafficConfig, overlapping_pairs
 from mjdrive.traffic.conflicts import PRIORITY_ACCEL, reach_time
 from mjdrive.traffic.intentions import AFTER, BEFORE, LANE_CHANGE, LEFT, RIGHT, ROUNDABOUT, STRAIGHT, TAKE_WAY, YIELD
 from mjdrive.traffic.urban import URBAN_CONFIG, piece_exits, urban_traffic
@@ -368,3 +368,46 @@ def test_a_closed_lane_takes_no_traffic_in():
 
     assert on_approach((approach,)) == 0
     assert on_approach(()) > 10
+
+
+def test_a_committed_vehicle_stops_at_the_zone_for_the_ego_committed_to_it():
+    """The ego standing past its give-way line (committed to the crossing, not yet in the zone) and a main-road car
+    past its own line at 4 m/s: the car stops at the zone's edge, as a driver brakes for a car that has pulled out in
+    front whoever had the right of way (it used to drive on into the ego's path: the hybrid's crossroad
+    collisions), and goes on once the ego has crossed."""
+    traffic, rm = scene(("crossroad",), n=1)
+    approach, crossing = lane(rm, "crossroad/approach_in_0"), lane(rm, "crossroad/approach->straight_0")
+    car_lane = lane(rm, "crossroad/left->right_0")
+    ap = traffic.approaches
+    r = next(r for r in range(len(ap.lane)) if ap.lane[r] == car_lane and ap.other[r] == crossing)
+    traffic.place(0, [car_lane], 2.0 - traffic.vehicles.length[0] / 2, 4.0, desired_speed=8.0,
+                  intentions={"crossroad": STRAIGHT})  # front 2 m into its connector: past its line
+    length, half_width = 4.8, 0.92
+    path = np.array([approach, crossing, lane(rm, "crossroad/straight_out_0")])
+    s = [rm.lanes[approach].length + 1.0 - length / 2]  # front 1 m past the give-way line, before the zone
+
+    def ego() -> EgoState:
+        on = 0 if s[0] < rm.lanes[approach].length else 1
+        here = s[0] - (rm.lanes[approach].length if on else 0.0)
+        x, y = rm.lanes[path[on]].position(here)
+        return EgoState(x, y, rm.lanes[path[on]].heading(here), 0.0, length, 2 * half_width, path[on:], here)
+
+    fronts = []
+
+    def advance(seconds: float) -> None:
+        for _ in range(int(round(seconds / SUBSTEP))):
+            traffic.advance(SUBSTEP, ego)
+            e = ego()
+            poses = np.vstack([traffic.poses()[:1], [[e.x, e.y, e.yaw]]])
+            half = np.vstack([traffic.half_size[:1], [[length / 2, half_width, 0.7]]])
+            assert not len(overlapping_pairs(poses, half))
+            if int(traffic.vehicles.path[0, 0]) == car_lane:
+                fronts.append((traffic.vehicles.s[0] + traffic.vehicles.length[0] / 2, traffic.vehicles.v[0]))
+
+    advance(6.0)  # the ego stands committed
+    front, speed = fronts[-1]
+    assert speed < 0.1 and front <= ap.s_in[r]  # the car waits before the zone
+    for _ in range(int(round(8.0 / SUBSTEP))):  # the ego crosses at 3 m/s
+        s[0] += 3.0 * SUBSTEP
+        advance(SUBSTEP)
+    assert traffic.vehicles.v[0] > 1.0 or int(traffic.vehicles.path[0, 0]) != car_lane  # and goes on

@@ -135,7 +135,7 @@ class OSQPSolver:
         solver.solve()
         info = solver.info
         x = solver.solution.x if info.status_val in _USABLE else None
-        if x is not None and not np.all(np.isfinite(x)):
+        if x is not None and not math.isfinite(x.sum()):  # a sum of finite values is finite (|x| << 1e300 here)
             x = None
         return x, int(info.iter), info.status_val == osqp.ext_builtin.OSQP_SOLVED
 
@@ -206,9 +206,9 @@ class LongitudinalMPC:
         self.config = c = config
         n, h = c.horizon, c.step
         self.times = h * np.arange(n + 1)  # [s]
-        self._nx = 3 * (n + 1)
+        self._nx = 3 * n  # the states of steps 1..N (step 0's is given: it enters the first dynamics rows' bounds)
         nv = self._nx + 3 * n  # states, jerks, position slacks, speed slacks
-        self._x = lambda k, i: 3 * k + i
+        self._x = lambda k, i: 3 * (k - 1) + i
         self._j = lambda k: self._nx + k
         self._slack = lambda k: self._nx + n + k  # the position slack of step k + 1
         self._speed_slack = lambda k: self._nx + 2 * n + k
@@ -220,15 +220,13 @@ class LongitudinalMPC:
             cols.append(col)
             vals.append(value)
 
-        for i in range(3):  # initial state
-            put(self._x(0, i), 1.0)
-            row += 1
         transition = np.array([[1.0, h, h * h / 2], [0.0, 1.0, h], [0.0, 0.0, 1.0]])
+        self._transition = transition
         gain = np.array([h**3 / 6, h * h / 2, h])
-        for k in range(n):  # dynamics: A x_k + B j_k - x_{k+1} = 0
+        for k in range(n):  # dynamics: A x_k + B j_k - x_{k+1} = 0 (for k = 0: B j_0 - x_1 = -A x_0)
             for i in range(3):
                 for m in range(3):
-                    if transition[i, m]:
+                    if transition[i, m] and k > 0:
                         put(self._x(k, m), transition[i, m])
                 put(self._j(k), gain[i])
                 put(self._x(k + 1, i), -1.0)
@@ -242,12 +240,10 @@ class LongitudinalMPC:
         for k in range(n):
             put(self._j(k), 1.0)
             row += 1
-        self._rows_speed = row
-        for k in range(1, n + 1):  # v_k >= 0 (hard: `initial_accel` keeps it feasible)
-            put(self._x(k, 1), 1.0)
-            row += 1
         self._rows_limit = row
-        for k in range(1, n + 1):  # v_k - mu_k <= v_max_k
+        # 0 <= v_k - mu_k <= v_max_k: the speed limit, soft, and v_k >= 0, hard (`initial_accel` keeps it feasible):
+        # v_k >= mu_k >= 0, and a slack mu_k > 0 only where v_k passes v_max_k >= 0, so v_k >= mu_k costs nothing
+        for k in range(1, n + 1):
             put(self._x(k, 1), 1.0)
             put(self._speed_slack(k - 1), -1.0)
             row += 1
@@ -279,7 +275,13 @@ class LongitudinalMPC:
         self._l = np.full(row, -INFINITY)
         self._u = np.full(row, INFINITY)
         self._l[: self._n_eq] = self._u[: self._n_eq] = 0.0
-        self._l[self._rows_speed: self._rows_limit] = 0.0  # v_k >= 0 (the limit rows have no lower bound)
+        self._start = np.zeros(3)  # (s, v, a) of step 0: 0 [m], the speed [m/s] and acceleration [m/s^2] now
+        # views of the vectors a solve updates (the vectors are only ever changed in place)
+        self._limit = self._u[self._rows_limit: self._rows_limit + n]  # [m/s] v_max_k
+        self._stop = self._u[self._rows_stop: self._rows_stop + n]  # [m] the stop point (NO_LIMIT: none)
+        self._follow = self._u[self._rows_follow: self._rows_follow + n]  # [m] the leaders' rears less d0
+        self._speed_cost = self._q[self._x(1, 1): self._x(n, 1) + 1: 3]  # -2 w_v v_ref_k
+        self._l[self._rows_limit: self._rows_limit + n] = 0.0  # v_k - mu_k >= 0
         self._l[self._rows_slack:] = 0.0
         self._set_bounds(0)
         self._initial = (self._q.copy(), self._l.copy(), self._u.copy())  # the vectors a solver is set up with
@@ -323,18 +325,22 @@ class LongitudinalMPC:
         the front bumper coming to rest at most `stop` [m] ahead (None: no stop) and keeping its gap to each of
         `leaders`. `stop_moves`: the stop point comes towards the car (a road user crossing): a plan passing it
         goes to the emergency bounds at once, as the firm plan's static point would be behind the truth."""
-        c, n = self.config, self.config.horizon
+        c = self.config
         v0, a0 = max(speed, 0.0), self.initial_accel(speed, accel)
-        ref = np.broadcast_to(np.asarray(v_ref, dtype=float), (n,)).copy()
-        self._u[self._rows_limit: self._rows_limit + n] = ref
-        if stop is not None:  # the comfortable stopping profile v = sqrt(2 b (stop - s)), in time from here
+        limit = self._limit
+        limit[:] = v_ref
+        if stop is None:
+            np.multiply(limit, -2.0 * c.speed_weight, out=self._speed_cost)
+            self._stop[:] = NO_LIMIT
+        else:  # the comfortable stopping profile v = sqrt(2 b (stop - s)), in time from here
             start = math.sqrt(2.0 * c.stop_decel * max(stop, 0.0))
-            ref = np.minimum(ref, np.maximum(start - c.stop_decel * self.times[1:], 0.0))
-        x = self._x
-        self._q[x(1, 1): x(n, 1) + 1: 3] = -2.0 * c.speed_weight * ref
-        self._l[0:3] = self._u[0:3] = (0.0, v0, a0)
-        self._u[self._rows_stop: self._rows_stop + n] = NO_LIMIT if stop is None else stop
-        follow = self._u[self._rows_follow: self._rows_follow + n]
+            ref = np.minimum(limit, np.maximum(start - c.stop_decel * self.times[1:], 0.0))
+            np.multiply(ref, -2.0 * c.speed_weight, out=self._speed_cost)
+            self._stop[:] = stop
+        h = c.step
+        self._start[1], self._start[2] = v0, a0
+        self._l[0:3] = self._u[0:3] = (-(v0 * h + a0 * h * h / 2), -(v0 + a0 * h), -a0)  # -A x_0
+        follow = self._follow
         follow[:] = self._ahead[:] = NO_LIMIT
         for leader in leaders:
             bound = leader.positions(self.times[1:]) - c.standstill_gap
@@ -362,9 +368,8 @@ class LongitudinalMPC:
         states, jerks = np.empty((n + 1, 3)), np.empty(n)
         c = self.config
         slack, mode, intrusion, intrusion_ahead = plan_within_bounds(
-            self._l[0:3], solution[self._nx: self._nx + n], c.step, self._l[self._rows_accel],
-            self._u[self._rows_accel], self._u[self._rows_jerk], self._u[self._rows_stop: self._rows_stop + n],
-            self._u[self._rows_follow: self._rows_follow + n], self._ahead, c.headway,
+            self._start, solution[self._nx: self._nx + n], c.step, self._l[self._rows_accel],
+            self._u[self._rows_accel], self._u[self._rows_jerk], self._stop, self._follow, self._ahead, c.headway,
             c.standstill_gap - c.emergency_gap, states, jerks)
         return MPCPlan(states[:, 0], states[:, 1], states[:, 2], jerks, slack, MODES[mode],
                        TIERS[tier], iterations, intrusion, converged, intrusion_ahead)

@@ -279,7 +279,7 @@ def zone_stops(followers, agents, vehicles, approaches, slot_pos, c, control):
             forcing = (waited >= c.impatience and v_me < HELD_SPEED and me_stop < AT_LINE and me_stop >= -COMMITTED
                        and yields)
             # --- crossings (and merges inside junctions) ---------------------------------------------------------
-            soon = claimed_any = promised = occupied = first = False
+            soon = claimed_any = promised = occupied = first = ego_promised = False
             # standing first in line (within AT_LINE of it) is arriving now, wherever before the line one stopped
             standing = v_me < HELD_SPEED and me_stop < AT_LINE and me_stop > -COMMITTED
             t_line_me = 0.0 if standing else maximum(ap_stop[r] - front_me, 0.0) / maximum(v_a[row], c.merge_speed)
@@ -298,6 +298,7 @@ def zone_stops(followers, agents, vehicles, approaches, slot_pos, c, control):
                 # promises, which could go round in a circle).
                 if inside[a, r]:
                     promised = True
+                    ego_promised = ego_promised or a == n_vehicles
                 if in_zone[a, r]:
                     occupied = True
                 # Ties: whoever reaches its give-way line sooner goes first, then whoever has waited longer, then the
@@ -345,6 +346,12 @@ def zone_stops(followers, agents, vehicles, approaches, slot_pos, c, control):
             if (wait_timed or wait_merge or (timed and (promised or claimed))) and holding:
                 line_gap = me_stop
             if timed and occupied and edge > -COMMITTED:
+                line_gap = minimum(line_gap, edge)
+            # The ego committed to the zone (past its give-way line) will cross: a vehicle committed too stops at the
+            # zone's edge for it if it still can (braking at most CLAIM_DECEL), as a driver brakes for a car that
+            # has pulled out in front, whoever had the right of way. Only for the ego: two committed vehicles of
+            # the traffic waiting for each other's promises could go round in a circle.
+            if timed and ego_promised and not holding and edge > -COMMITTED and can_stop(v_me, edge + STOP_MARGIN):
                 line_gap = minimum(line_gap, edge)
             line[p], leader_gaps[p], leader_speeds[p] = line_gap, leader_gap, v_a[leader]
             to_give_way[f] = minimum(to_give_way[f], me_stop if gives_way and holding else np.inf)
