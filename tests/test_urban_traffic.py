@@ -411,3 +411,30 @@ def test_a_committed_vehicle_stops_at_the_zone_for_the_ego_committed_to_it():
         s[0] += 3.0 * SUBSTEP
         advance(SUBSTEP)
     assert traffic.vehicles.v[0] > 1.0 or int(traffic.vehicles.path[0, 0]) != car_lane  # and goes on
+
+
+def test_three_lanes_abreast_at_a_lane_drop_do_not_wait_for_each_other_for_ever():
+    """Three cars standing abreast where a three-lane road drops to one, each waiting for the next: the left lane's car
+    behind the courteous right lane's car it lets in (a zipper), that one behind the middle lane's, and the middle
+    lane's at its line for the left lane's car beside it (once a stand-off for good: the maps sweep's three-lane road
+    ended at the time limit). Standing first at its line for `TURN_WAIT`, a car goes before the standing one beside
+    it, and all three pass the drop without touching."""
+    composed = concatenated({"order": ["road"], "road": {"lanes": 3, "opposite_lanes": 2, "taper_length": 60.0}})
+    rm = composed.road_map
+    traffic = urban_traffic(composed, counts={"car": 3}, config=QUIET)
+    traffic.reset(np.random.default_rng(0))
+    traffic.remove_all()
+    for row, (name, front, wish) in enumerate((("main_0", 201.3, TAKE_WAY), ("main_1", 199.5, TAKE_WAY),
+                                               ("main_2", 199.5, YIELD))):
+        traffic.place(row, [lane(rm, f"overtaking_road/{name}")], front - traffic.vehicles.length[row] / 2, 0.0,
+                      desired_speed=8.0, intentions={"merge": wish})
+    out = lane(rm, "overtaking_road/out_2")
+    through: set[int] = set()
+
+    def note():
+        through.update(row for row in range(3) if traffic.vehicles.path[row, 0] == out)
+        present = traffic.present
+        assert not len(overlapping_pairs(traffic.poses()[present], traffic.half_size[present]))
+
+    run(traffic, 30.0, note)
+    assert through == {0, 1, 2}

@@ -337,7 +337,11 @@ def zone_stops(followers, agents, vehicles, approaches, slot_pos, c, control):
             # Only the nearest agent behind matters (the follower's follower after the merge; the rest queue behind
             # it), and not if it is courteous: it keeps its distance to the follower, a virtual leader of its own.
             letting_in = courteous_a[nearest] and ap_courtesy[r]
-            cut_off = np.isfinite(room_nearest) and not letting_in and room_nearest < needed[nearest]
+            # Standing first at its line for TURN_WAIT, it is its turn before a priority agent standing behind it (a
+            # vehicle abreast in a third lane may be waiting for that one: three lanes of a drop side by side, each
+            # waiting for the next, would stand for ever); once it has committed, that agent falls in behind it.
+            my_turn = standing and waited >= TURN_WAIT and v_a[nearest] < HELD_SPEED
+            cut_off = np.isfinite(room_nearest) and not letting_in and room_nearest < needed[nearest] and not my_turn
             wait_merge = not timed and yields and cut_off
             # --- stop lines -------------------------------------------------------------------------------------
             holding = me_stop > -COMMITTED  # not yet committed
