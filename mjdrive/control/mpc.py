@@ -131,7 +131,7 @@ class OSQPSolver:
         solver = self._solver
         if budget is not None and budget != self._budget:
             self._set_budget(budget)
-        solver.update_data_vec(q=q, l=l, u=u)
+        solver.update_data_vec(q, l, u)  # (q, l, u): positional, a little cheaper than by keyword
         solver.solve()
         info = solver.info
         x = solver.solution.x if info.status_val in _USABLE else None
@@ -206,6 +206,7 @@ class LongitudinalMPC:
         self.config = c = config
         n, h = c.horizon, c.step
         self.times = h * np.arange(n + 1)  # [s]
+        self._times_ahead = self.times[1:]  # [s] steps 1..N
         self._nx = 3 * n  # the states of steps 1..N (step 0's is given: it enters the first dynamics rows' bounds)
         nv = self._nx + 3 * n  # states, jerks, position slacks, speed slacks
         self._x = lambda k, i: 3 * (k - 1) + i
@@ -334,16 +335,18 @@ class LongitudinalMPC:
             self._stop[:] = NO_LIMIT
         else:  # the comfortable stopping profile v = sqrt(2 b (stop - s)), in time from here
             start = math.sqrt(2.0 * c.stop_decel * max(stop, 0.0))
-            ref = np.minimum(limit, np.maximum(start - c.stop_decel * self.times[1:], 0.0))
+            ref = np.minimum(limit, np.maximum(start - c.stop_decel * self._times_ahead, 0.0))
             np.multiply(ref, -2.0 * c.speed_weight, out=self._speed_cost)
             self._stop[:] = stop
-        h = c.step
+        h, lower, upper = c.step, self._l, self._u
         self._start[1], self._start[2] = v0, a0
-        self._l[0:3] = self._u[0:3] = (-(v0 * h + a0 * h * h / 2), -(v0 + a0 * h), -a0)  # -A x_0
+        lower[0] = upper[0] = -(v0 * h + a0 * h * h / 2)  # -A x_0 (element by element: no array made per solve)
+        lower[1] = upper[1] = -(v0 + a0 * h)
+        lower[2] = upper[2] = -a0
         follow = self._follow
         follow[:] = self._ahead[:] = NO_LIMIT
         for leader in leaders:
-            bound = leader.positions(self.times[1:]) - c.standstill_gap
+            bound = leader.positions(self._times_ahead) - c.standstill_gap
             np.minimum(follow, bound, out=follow)
             if not (leader.alongside and leader.speed >= v0):
                 np.minimum(self._ahead, bound, out=self._ahead)
