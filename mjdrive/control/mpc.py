@@ -47,7 +47,7 @@ import numpy as np
 import osqp
 import scipy.sparse as sparse
 
-from mjdrive.compiled import jit
+from mjdrive.compiled import inline, jit
 from mjdrive.config import Config, ConfigError, param
 
 INFINITY = osqp.ext_builtin.OSQP_INFTY  # OSQP's infinite bound (1e30)
@@ -162,13 +162,8 @@ class Leader:
     alongside: bool = False
 
     def positions(self, times: np.ndarray) -> np.ndarray:
-        """Its rear bumper [m] (ego front now = 0) at `times` [s]."""
-        v, a = max(self.speed, 0.0), self.accel
-        if a >= 0.0:
-            return self.gap + v * times + 0.5 * a * times * times
-        t_stop = v / -a
-        t = np.minimum(times, t_stop)
-        return self.gap + v * t + 0.5 * a * t * t
+        """Its rear bumper [m] (ego front now = 0) at `times` [s] (`rear_at`)."""
+        return rear_positions(self.gap, self.speed, self.accel, np.asarray(times, dtype=float))
 
 
 @dataclass(frozen=True)
@@ -346,10 +341,8 @@ class LongitudinalMPC:
         follow = self._follow
         follow[:] = self._ahead[:] = NO_LIMIT
         for leader in leaders:
-            bound = leader.positions(self._times_ahead) - c.standstill_gap
-            np.minimum(follow, bound, out=follow)
-            if not (leader.alongside and leader.speed >= v0):
-                np.minimum(self._ahead, bound, out=self._ahead)
+            fold_leader(leader.gap, leader.speed, leader.accel, self._times_ahead, c.standstill_gap, follow,
+                        self._ahead, not (leader.alongside and leader.speed >= v0))
         if self._tier:
             self._set_bounds(0)
         plan = self._solve(0)
@@ -390,6 +383,36 @@ class LongitudinalMPC:
             v[k + 1] = max(v[k] + a[k] * h + 0.5 * j[k] * h * h, 0.0)
             s[k + 1] = s[k] + 0.5 * (v[k] + v[k + 1]) * h
         return MPCPlan(s, v, a, j, math.inf, "stop", "fallback", 0, converged=False)
+
+
+@inline
+def rear_at(gap: float, speed: float, accel: float, t: float) -> float:
+    """[m] a leader's rear bumper (the ego's front now = 0) t [s] from now: `gap` [m] now, at `speed` [m/s] (at least
+    0) with constant `accel` [m/s^2], never reversing (it stands once it has braked to rest)."""
+    v = max(speed, 0.0)
+    if accel < 0.0:
+        t = min(t, v / -accel)
+    return gap + v * t + 0.5 * accel * t * t
+
+
+@jit
+def rear_positions(gap: float, speed: float, accel: float, times: np.ndarray) -> np.ndarray:
+    """`rear_at` at each of `times` [s]."""
+    out = np.empty(len(times))
+    for k in range(len(times)):
+        out[k] = rear_at(gap, speed, accel, times[k])
+    return out
+
+
+@jit
+def fold_leader(gap, speed, accel, times, standstill_gap, follow, ahead, to_ahead):
+    """The follow bounds of a leader (`rear_at` at `times` [s], less `standstill_gap` [m]) folded into `follow` [m]
+    (the least of each step's bounds), and into `ahead` where `to_ahead` (a leader ahead, not alongside)."""
+    for k in range(len(times)):
+        bound = rear_at(gap, speed, accel, times[k]) - standstill_gap
+        follow[k] = min(follow[k], bound)
+        if to_ahead:
+            ahead[k] = min(ahead[k], bound)
 
 
 @jit
