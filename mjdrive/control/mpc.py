@@ -217,7 +217,6 @@ class LongitudinalMPC:
             vals.append(value)
 
         transition = np.array([[1.0, h, h * h / 2], [0.0, 1.0, h], [0.0, 0.0, 1.0]])
-        self._transition = transition
         gain = np.array([h**3 / 6, h * h / 2, h])
         for k in range(n):  # dynamics: A x_k + B j_k - x_{k+1} = 0 (for k = 0: B j_0 - x_1 = -A x_0)
             for i in range(3):
