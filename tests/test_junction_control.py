@@ -150,7 +150,7 @@ def test_random_control_is_drawn_per_episode_and_seeded():
 
 def test_bad_junction_keywords():
     with pytest.raises(ConfigError, match=r"junction_control='roundabout': must be one of 'give_way', 'stop', "
-                                          r"'lights', 'random'"):
+                                          r"'lights', 'map', 'random'"):
         suite.load("urban", "crossroad", task_kwargs={"junction_control": "roundabout"})
     with pytest.raises(ConfigError, match=r"signals\.amber=0: must be >= 1"):
         suite.load("urban", "crossroad", task_kwargs={"signals": {"amber": 0}})

@@ -24,6 +24,7 @@ from mjdrive.roads.conflicts import MERGE, TIE, YIELD_A, YIELD_B
 from mjdrive.roads.geometry import wrap_angle
 from mjdrive.roads.opendrive import _parse, longest_route, read_opendrive, route_between
 from mjdrive.roads.roadmap import MAIN_ROAD, MINOR_ROAD
+from mjdrive.traffic import junction_control as jc
 from mjdrive.traffic import overlapping_pairs
 from mjdrive.traffic.lanes import polyline_distance
 
@@ -265,3 +266,77 @@ def test_an_imported_map_is_the_same_in_every_process():
                               env={**os.environ, "PYTHONHASHSEED": str(seed)}).stdout.strip()
                for seed in (1, 2, 3)}
     assert len(digests) == 1 and len(next(iter(digests))) == 64
+
+
+def _entry_of_road(rm, road: str) -> int:
+    """The lane of OpenDRIVE road `road` that enters the four-way junction (lane -1, driving along the road)."""
+    return rm.lane_id(f"road{road}/section0/lane-1")
+
+
+def test_the_files_signals_mark_the_entries_they_face(tmp_path):
+    """Stop signs and lights from <signal> and <signalReference>: an entry is marked when the signal faces its
+    direction of travel and lanes; signs mjdrive does not model (give way, 205) and signals facing lanes that leave
+    the junction are left out; lights are grouped by the junction's controllers, or by heading without them."""
+    lights = read_opendrive(MAPS_DIR / "four_way_lights.xodr")
+    entries = {_entry_of_road(lights, road): group for road, group in
+               (("0", MAIN_ROAD), ("1", MINOR_ROAD), ("2", MAIN_ROAD), ("3", MINOR_ROAD))}
+    assert dict(lights.junction_entries) == entries and lights.entry_signs == dict.fromkeys(entries, "lights")
+    tree = etree.parse(str(MAPS_DIR / "four_way_lights.xodr"))
+    root = tree.getroot()
+    for element in root.iter("controller"):
+        element.getparent().remove(element)
+    path = tmp_path / "uncontrolled.xodr"
+    tree.write(str(path))
+    assert dict(read_opendrive(path).junction_entries) == entries  # by heading: the first entry's axis is main
+
+    tree = etree.parse(str(MAPS_DIR / "four_way.xodr"))
+    roads = {road.get("id"): road for road in tree.getroot().iter("road")}
+
+    def add(road: str, tag: str, **attributes) -> None:
+        signals = roads[road].find("signals")
+        if signals is None:
+            signals = etree.SubElement(roads[road], "signals")
+        etree.SubElement(signals, tag, **attributes)
+
+    add("1", "signal", id="1", s="78", t="-4", type="206", orientation="+", dynamic="no")  # stop, faces the entry
+    add("0", "signal", id="2", s="2", t="4", type="206", orientation="-", dynamic="no")  # faces the lane leaving
+    add("3", "signal", id="3", s="78", t="-4", type="205", orientation="+", dynamic="no")  # give way: not modelled
+    add("2", "signalReference", id="1", s="78", t="-4", orientation="+")  # road 1's stop sign, seen on road 2
+    add("3", "signal", id="4", s="78", t="-4", name="StopSign", type="-1", orientation="+", dynamic="no")
+    validity = etree.SubElement(roads["3"].find("signals")[-1], "validity", fromLane="-2", toLane="-2")
+    assert validity is not None  # lane -2 only: road 3 has none, so its entry stays unmarked
+    path = tmp_path / "signs.xodr"
+    tree.write(str(path))
+    rm = read_opendrive(path)
+    assert rm.entry_signs == {_entry_of_road(rm, "1"): "stop", _entry_of_road(rm, "2"): "stop"}
+    assert sorted(dict(rm.junction_entries)) == sorted(rm.entry_signs)
+
+
+def test_the_lights_of_an_imported_map_hold_traffic_and_the_autopilot(drive_episode):
+    """urban/opendrive runs under the file's own signals: the ego sees them, the autopilot obeys them, and the
+    traffic stops at red for three minutes without a violation or an overlap while every arm keeps flowing."""
+    env = make_env("urban", "opendrive", opendrive="four_way_lights")
+    observation, _ = env.reset(seed=2)
+    assert observation["junction"].shape == (5,) and observation["junction"][:4].sum() == 1.0
+    info = drive_episode(env, make_policy("autopilot", env), seed=2)
+    assert info["success"] and not info["collision"] and info["violation"] is None, info
+    traffic = env.unwrapped.task.traffic
+    assert traffic.junctions.active and (traffic.junctions.kinds == jc.LIGHTS).all()
+    entries = traffic.junctions.lane
+    passed, overlaps, red = np.zeros(len(entries), dtype=int), 0, np.zeros(len(entries), dtype=bool)
+    before = traffic.vehicles.path[:, 0].copy()
+    for _ in range(int(180.0 / traffic.config.substep)):
+        traffic.advance(traffic.config.substep)
+        red |= traffic.entry_state == jc.RED
+        present = traffic.present
+        overlaps += len(overlapping_pairs(traffic.poses()[present], traffic.half_size[present])) > 0
+        now = np.where(traffic.vehicles.active, traffic.vehicles.path[:, 0], -1)
+        for k, lane in enumerate(entries):
+            passed[k] += int(((before == lane) & (now != lane) & (now >= 0)).sum())
+        before = now
+    assert red.all() and overlaps == 0 and traffic.stats["red_light_violations"] == 0
+    assert (passed >= 3).all(), passed
+    plain = make_env("urban", "opendrive", opendrive="four_way")  # no signals in the file: give way, as before
+    assert "junction" not in plain.observation_space.spaces
+    plain.reset(seed=0)
+    assert not plain.unwrapped.task.traffic.junctions.active

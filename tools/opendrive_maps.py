@@ -1,9 +1,11 @@
 """The small OpenDRIVE maps shipped in mjdrive/maps/ (the `urban/opendrive` task's named maps and the tests'),
 written with scenariogeneration (the dev extra), and their drawing in docs/.
 
-    python -m tools.opendrive_maps                 # writes mjdrive/maps/*.xodr and docs/opendrive_maps.png
+    python -m tools.opendrive_maps [NAME ...]      # writes mjdrive/maps/*.xodr and docs/opendrive_maps.png
 
 - four_way: a four-arm junction, one lane each way per arm (line arms), connecting roads for every movement;
+- four_way_lights: the same junction with a traffic light on every arm, the west-east arms on the junction's first
+  controller (the main road's phase), the south-north arms on its second (`junction_control="map"`);
 - multilane: a two-lanes-each-way road whose reference line runs through a line, a spiral, an arc, a spiral and a
   paramPoly3, linked (a road link, no junction) to a straight road;
 - roundabout: a one-lane ring of four arcs between four junctions, each with a two-way arm (written element by
@@ -24,11 +26,16 @@ MAPS_DIR = Path(__file__).resolve().parents[1] / "mjdrive" / "maps"
 LANE_WIDTH = 3.5  # [m]
 
 
-def four_way(path: Path) -> None:
+def four_way(path: Path, lights: bool = False) -> None:
     from scenariogeneration import xodr
 
     roads = [xodr.create_road(xodr.Line(80.0), i, left_lanes=1, right_lanes=1, lane_width=LANE_WIDTH)
              for i in range(4)]
+    if lights:  # a light before the junction, facing the lane that enters it (along the road)
+        for i, road in enumerate(roads):
+            road.add_signal(xodr.Signal(s=78.0, t=-LANE_WIDTH - 0.5, country="DEU", Type="1000001", id=str(200 + i),
+                                        name=f"light{i}", dynamic=xodr.Dynamic.yes,
+                                        orientation=xodr.Orientation.positive))
     junction = xodr.CommonJunctionCreator(id=100, name="four_way")
     for i, road in enumerate(roads):
         junction.add_incoming_road_circular_geometry(road=road, radius=16.0, angle=i * math.pi / 2,
@@ -36,7 +43,20 @@ def four_way(path: Path) -> None:
     for i in range(4):
         for j in range(i + 1, 4):
             junction.add_connection(i, j)
-    _write(path, "four_way", roads, [junction])
+    _write(path, "four_way_lights" if lights else "four_way", roads, [junction])
+    if lights:  # controllers (scenariogeneration writes none): arms 0 and 2, then arms 1 and 3
+        from lxml import etree
+
+        tree = etree.parse(str(path), etree.XMLParser(remove_blank_text=True))  # re-indented on writing
+        root = tree.getroot()
+        junction_xml = root.find("junction")
+        for k, arms in enumerate(((0, 2), (1, 3))):
+            controller = etree.Element("controller", id=str(300 + k), name=f"phase{k}")
+            for arm in arms:
+                etree.SubElement(controller, "control", signalId=str(200 + arm), type="0")
+            junction_xml.addprevious(controller)
+            etree.SubElement(junction_xml, "controller", id=str(300 + k), type="0", sequence=str(k + 1))
+        tree.write(str(path), pretty_print=True, xml_declaration=True, encoding="utf-8")
 
 
 def multilane(path: Path) -> None:
@@ -163,11 +183,13 @@ def _write(path: Path, name: str, roads: list, junctions: list) -> None:
     odr.write_xml(str(path))
 
 
-MAPS = {"four_way": four_way, "multilane": multilane, "roundabout": roundabout}
+MAPS = {"four_way": four_way, "four_way_lights": lambda path: four_way(path, lights=True), "multilane": multilane,
+        "roundabout": roundabout}
 
 
 def draw(out: Path) -> None:
-    """The shipped maps' lanes (arrows in the direction of travel) and junction areas, side by side."""
+    """The shipped maps' lanes (arrows in the direction of travel), junction areas and the files' signals, side by
+    side."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -187,6 +209,8 @@ def draw(out: Path) -> None:
             mid = len(lane.centre) // 2
             (x0, y0), (x1, y1) = lane.centre[mid - 1], lane.centre[mid]
             ax.annotate("", (x1, y1), (x0, y0), arrowprops={"arrowstyle": "->", "color": colour})
+        for lane, sign in rm.entry_signs.items():  # the file's lights (circles) and stop signs (octagons)
+            ax.plot(*rm.lanes[lane].centre[-1], "o" if sign == "lights" else "8", color="black", ms=7)
         ax.set_title(f"{name}.xodr: {len(rm.lanes)} lanes (red: the default route)")
         ax.set_aspect("equal")
     fig.tight_layout()
@@ -194,9 +218,15 @@ def draw(out: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Writes the maps named in argv (all when none) and the drawing of them all."""
+    names = argv or list(MAPS)
+    unknown = sorted(set(names) - set(MAPS))
+    if unknown:
+        print(f"opendrive_maps: error: unknown map {', '.join(unknown)}; maps: {', '.join(MAPS)}", file=sys.stderr)
+        return 2
     MAPS_DIR.mkdir(parents=True, exist_ok=True)
-    for name, build in MAPS.items():
-        build(MAPS_DIR / f"{name}.xodr")
+    for name in names:
+        MAPS[name](MAPS_DIR / f"{name}.xodr")
         print(f"wrote {MAPS_DIR / name}.xodr")
     out = Path(__file__).resolve().parents[1] / "docs" / "opendrive_maps.png"
     draw(out)

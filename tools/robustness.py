@@ -378,7 +378,7 @@ def cases() -> list[Case]:
         c("suite.load", "urban/opendrive opendrive='scenario.xosc' (OpenSCENARIO)", "the root element is <OpenSCENARIO>, not <OpenDRIVE>", _load("urban", "opendrive", opendrive="scenario.xosc")),
         c("suite.load", "urban/opendrive opendrive='four_way' route_points=[0, 0, 0]", "route_points=[0, 0, 0]: must have 4 elements, got 3", _load("urban", "opendrive", route_points=[0, 0, 0])),
         c("suite.load", "urban/crossroad opendrive='four_way'", "only urban/opendrive takes it", _load("urban", "crossroad", opendrive="four_way")),
-        c("suite.load", "urban/crossroad junction_control='roundabout'", "must be one of 'give_way', 'stop', 'lights', 'random'", _load("urban", "crossroad", junction_control="roundabout")),
+        c("suite.load", "urban/crossroad junction_control='roundabout'", "must be one of 'give_way', 'stop', 'lights', 'map', 'random'", _load("urban", "crossroad", junction_control="roundabout")),
         c("suite.load", "urban/crossroad signals={'amber': 0}", "signals.amber=0: must be >= 1", _load("urban", "crossroad", signals={"amber": 0})),
         c("suite.load", "urban/crossroad collision_reward=5", "collision_reward=5: must be >= -100 and <= 0", _load("urban", "crossroad", collision_reward=5)),
         c("python -m tools.urban_traffic", "python -m tools.urban_traffic --map '{order: [bridge]}'", "argument --map: --map.order=['bridge']: element 'bridge' is not one of", _tool("urban_traffic", "--map", "{order: [bridge]}")),

@@ -80,7 +80,7 @@ def maps(sweep: bool) -> list[tuple[str, str, dict | str]]:
     return out
 
 
-IMPORTED = ("four_way", "multilane", "roundabout")  # the shipped OpenDRIVE maps (urban/opendrive)
+IMPORTED = ("four_way", "four_way_lights", "multilane", "roundabout")  # the shipped OpenDRIVE maps (urban/opendrive)
 
 
 def check_map(task: str, value: dict | str) -> UrbanMap:
@@ -158,23 +158,27 @@ def imported_report(args) -> str:
              f"{args.seeds}`. The maps shipped in mjdrive/maps (written by `python -m tools.opendrive_maps`, drawn in "
              "docs/opendrive_maps.png), read by pyxodr into lanes, the lane graph and conflict zones (right of way "
              "from the junctions' priority records: the roundabout's ring over its arms; four_way has none, first "
-             "come, first served); `urban/opendrive` drives the longest route across "
+             "come, first served; four_way_lights has the file's traffic lights, in force as under "
+             "`junction_control=map`, the task's default); `urban/opendrive` drives the longest route across "
              f"each with its default traffic (1 car per 60 m of lane). Traffic alone {args.minutes:g} simulated "
              f"minutes on each of seeds 0-{args.seeds - 1}; the autopilot on {args.episodes} episodes (seeds "
              f"{args.seed}-{args.seed + args.episodes - 1}, 300 s limit).", "",
-             "| map | lanes | road users | overlaps | free stop max [s] | autopilot success [%] | collisions | time "
-             "limits | time [s] | time max [s] |",
-             "| --- | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+             "| map | lanes | road users | overlaps | red lights / stop signs run | free stop max [s] | autopilot "
+             "success [%] | collisions | time limits | time [s] | time max [s] |",
+             "| --- | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for name in IMPORTED:
         composed = ComposedMap(read_opendrive(MAPS_DIR / f"{name}.xodr"), [])
-        traffic = [run_traffic(composed, seed, args.minutes) for seed in range(args.seeds)]
+        traffic = [run_traffic(composed, seed, args.minutes, "map") for seed in range(args.seeds)]
         rows = run_episodes("opendrive", "autopilot", args.episodes, args.seed, args.workers,
                             task_kwargs={"opendrive": name})
         ends = [r["end"] for r in rows]
         times = [r["time"] for r in rows if r["end"] == "success"]
         counts = ", ".join(f"{n} {kind}s" for kind, n in traffic[0]["counts"].items())
         lines.append(f"| {name}.xodr | {len(composed.road_map.lanes)} | {counts} | "
-                     f"{sum(r['overlaps'] for r in traffic)} | {max(r['stop_free'] for r in traffic):.1f} | "
+                     f"{sum(r['overlaps'] for r in traffic)} | "
+                     f"{sum(r['stats']['red_light_violations'] for r in traffic)} / "
+                     f"{sum(r['stats']['stop_sign_violations'] for r in traffic)} | "
+                     f"{max(r['stop_free'] for r in traffic):.1f} | "
                      f"{100.0 * ends.count('success') / len(ends):.0f} | {ends.count('collision')} | "
                      f"{ends.count('time_limit')} | {np.mean(times) if times else float('nan'):.1f} | "
                      f"{max(times) if times else float('nan'):.1f} |")

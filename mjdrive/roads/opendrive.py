@@ -11,6 +11,15 @@ its roads (`<junction><priority high="ROAD" low="ROAD"/>`): then a connecting la
 step lower, as on the crossroad piece; the minor roads' lanes give way at the junction's mouth, and every entry
 lane is a junction entry of its road's group (stop signs and traffic lights, `junction_control`, apply).
 
+The file's own stop signs and traffic lights (`<signal>` on a road, or a `<signalReference>` to one) mark the
+junction entries they face (`RoadMap.entry_signs`, in force under `junction_control="map"`): the lanes of that road
+that drive in the signal's orientation ("+": along the road, "-": against it, "none": both; within its
+`<validity>` lanes) and end at a junction. A dynamic signal or one of the catalogue's 1000xxx types is a traffic
+light, type 206 (or a name with "stop") a stop sign; other signs are left out. Lights switch by group: the signals
+of a junction's first controller (`<junction><controller sequence>`) are the main road's, the others the minor
+road's; without controllers an entry that the ranks have not grouped joins the main road's group when it runs
+parallel to the junction's first signalised entry, else the minor road's.
+
     rm = read_opendrive("town.xodr")
     route = route_between(rm, (x0, y0), (x1, y1))   # lane ids
 
@@ -97,6 +106,96 @@ def _speed_limit(road_xml) -> float:
     return DEFAULT_SPEED
 
 
+def _signal_kind(signal) -> str | None:
+    """"lights", "stop" or None (a sign mjdrive does not model) for a <signal> element (module docstring)."""
+    kind = signal.get("type") or ""
+    if signal.get("dynamic") == "yes" or kind.startswith("1000"):
+        return "lights"
+    if kind == "206" or "stop" in (signal.get("name") or "").lower():
+        return "stop"
+    return None
+
+
+def _validity(element) -> tuple[int, int] | None:
+    """The lane ids (low, high) a signal's first <validity fromLane toLane> covers; None: every lane."""
+    validity = element.find("validity")
+    try:
+        low, high = int(validity.get("fromLane")), int(validity.get("toLane"))
+    except (AttributeError, TypeError, ValueError):
+        return None
+    return min(low, high), max(low, high)
+
+
+def _road_signals(root) -> dict[str, list[tuple[str, str, tuple[int, int] | None, str]]]:
+    """Road id -> its stop signs and traffic lights, each (kind, orientation, validity, signal id); a
+    <signalReference> counts on the road that holds it, as the signal it names."""
+    kinds = {signal.get("id"): _signal_kind(signal) for signal in root.iter("signal")}
+    signals: dict[str, list[tuple[str, str, tuple[int, int] | None, str]]] = {}
+    for road in root.iter("road"):
+        for element in (*road.iter("signal"), *road.iter("signalReference")):
+            kind = kinds.get(element.get("id"))
+            if kind is not None:
+                signals.setdefault(road.get("id"), []).append(
+                    (kind, element.get("orientation") or "none", _validity(element), element.get("id")))
+    return signals
+
+
+def _signal_groups(root) -> dict[str, int]:
+    """Signal id -> MAIN_ROAD (the signals of a junction's first controller by `sequence`) or MINOR_ROAD (the rest)."""
+    controlled = {controller.get("id"): [control.get("signalId") for control in controller.iter("control")]
+                  for controller in root.findall("controller")}
+    groups: dict[str, int] = {}
+    for junction in root.iter("junction"):
+        refs = junction.findall("controller")
+        order = sorted(range(len(refs)), key=lambda k: (_number(refs[k].get("sequence"), k), k))
+        for rank, k in enumerate(order):
+            for signal in controlled.get(refs[k].get("id"), []):
+                groups[signal] = MAIN_ROAD if rank == 0 else MINOR_ROAD
+    return groups
+
+
+def _number(text: str | None, default: float) -> float:
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        return default
+
+
+def _apply_signals(rm: RoadMap, root, lane_of: dict[int, tuple[str, int, bool]], junction_of: dict[int, str]) -> None:
+    """The file's stop signs and traffic lights at the junction entries they face (module docstring); entries that
+    the ranks did not make are added, grouped by controller or by heading. lane_of: our lane -> (road id, lane id,
+    whether it drives along the road)."""
+    signals, groups = _road_signals(root), _signal_groups(root)
+    if not signals:
+        return
+    entries = dict(rm.junction_entries)
+    ungrouped: list[tuple[int, str]] = []
+    for index, (road, lane_id, forward) in lane_of.items():
+        ahead = [junction_of[j] for j in rm.successors[index] if j in junction_of]
+        if rm.lanes[index].in_junction or not ahead:
+            continue
+        for kind, orientation, lanes, signal in signals.get(road, ()):
+            if (orientation == "+" and not forward) or (orientation == "-" and forward):
+                continue
+            if lanes is not None and not lanes[0] <= lane_id <= lanes[1]:
+                continue
+            if rm.entry_signs.get(index) != "lights":  # lights and a sign on one lane: the lights rule
+                rm.entry_signs[index] = kind
+            if index not in entries and signal in groups:
+                entries[index] = groups[signal]
+                rm.junction_entries.append((index, groups[signal]))
+        if index in rm.entry_signs and index not in entries:
+            ungrouped.append((index, ahead[0]))
+    axes: dict[str, float] = {}
+    for index, junction in ungrouped:
+        end = np.diff(rm.lanes[index].centre[-2:], axis=0)[0]
+        heading = math.atan2(end[1], end[0])  # [rad] where the lane enters the junction
+        axis = axes.setdefault(junction, heading)
+        group = MAIN_ROAD if abs(math.sin(heading - axis)) < math.sqrt(0.5) else MINOR_ROAD  # within 45 deg
+        entries[index] = group
+        rm.junction_entries.append((index, group))
+
+
 def _road_ranks(root) -> dict[str, dict[str, int]]:
     """Junction id -> {road id: PRIORITY_MAJOR or PRIORITY_MINOR} from the junctions' <priority high low> records."""
     ranks: dict[str, dict[str, int]] = {}
@@ -157,6 +256,7 @@ def read_opendrive(path: str | os.PathLike, name: str | None = None) -> RoadMap:
     by_section: dict[tuple[str, int], dict[int, int]] = {}
     junctions: dict[str, list[int]] = {}  # OpenDRIVE junction id -> its lanes
     road_of: dict[int, str] = {}  # our lane -> its OpenDRIVE road id
+    lane_of: dict[int, tuple[str, int, bool]] = {}  # our lane -> (road id, lane id, whether it drives along the road)
     for road, k, lane in lanes:
         centre = resample(flows[id(lane)], LANE_STEP)
         length = float(np.hypot(*np.diff(centre, axis=0).T).sum()) if len(centre) > 1 else 0.0
@@ -171,6 +271,7 @@ def read_opendrive(path: str | os.PathLike, name: str | None = None) -> RoadMap:
                                  f"road{road.id}/section{k}/lane{lane.id}", inside))
         ids[id(lane)] = index
         road_of[index] = str(road.id)
+        lane_of[index] = (str(road.id), int(lane.id), (lane.id < 0) == (road.road_xml.get("rule", "RHT") != "LHT"))
         by_section.setdefault((road.id, k), {})[lane.id] = index
         if inside:
             junctions.setdefault(junction, []).append(index)
@@ -192,6 +293,7 @@ def read_opendrive(path: str | os.PathLike, name: str | None = None) -> RoadMap:
         rm.add_area(convex_hull(np.vstack(strips)))
     junction_of = {index: junction for junction, group in junctions.items() for index in group}
     _apply_ranks(rm, _road_ranks(tree.getroot()), road_of, junction_of)
+    _apply_signals(rm, tree.getroot(), lane_of, junction_of)
     return rm.freeze()
 
 

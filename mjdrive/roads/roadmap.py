@@ -139,6 +139,9 @@ class RoadMap:
         self.give_way: list[tuple[int, float]] = []  # give-way lines across lanes: (lane id, s [m])
         # lanes entering a junction that signals or signs can control: (lane id, group: MAIN_ROAD or MINOR_ROAD)
         self.junction_entries: list[tuple[int, int]] = []
+        # the signs and signals the map itself puts at junction entries: lane id -> "stop" (a stop sign) or "lights"
+        # (traffic lights); entries not in it give way by the conflict zones' right of way (`junction_control="map"`)
+        self.entry_signs: dict[int, str] = {}
         self._names: dict[str, int] = {}
         self._frozen: _Frozen | None = None
 
@@ -203,6 +206,7 @@ class RoadMap:
             self.crosswalks.append(Crosswalk(tf(cw.centre), cw.heading + rotation, cw.length, cw.width))
         self.give_way.extend((base + lane, s) for lane, s in other.give_way)
         self.junction_entries.extend((base + lane, group) for lane, group in other.junction_entries)
+        self.entry_signs.update({base + lane: sign for lane, sign in other.entry_signs.items()})
         return base
 
     def freeze(self) -> RoadMap:

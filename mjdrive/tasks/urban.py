@@ -61,7 +61,7 @@ from mjdrive.tasks.junction_watch import FEATURES as JUNCTION_FEATURES
 from mjdrive.tasks.junction_watch import JunctionWatch
 from mjdrive.traffic import KIND_NAMES, EgoState, Traffic, TrafficConfig, counts_to_kinds, slots
 from mjdrive.traffic.intentions import SCENARIOS as INTENTION_SCENARIOS
-from mjdrive.traffic.junction_control import CONTROLS, STATE_NAMES, SignalTiming
+from mjdrive.traffic.junction_control import CONTROLS, KEYWORDS, STATE_NAMES, SignalTiming
 from mjdrive.traffic.urban import URBAN_CONFIG, default_counts, urban_traffic
 
 SUITE = containers.TaggedTasks()
@@ -99,7 +99,7 @@ class UrbanConfig(DrivingConfig):
                                  "{...}, road: {...}, crossroad: {...}, merge: {...}}), or the path of a YAML or "
                                  "JSON file of them; None: the task's pieces at their defaults")
     opendrive: str | None = param(None, "urban/opendrive: the OpenDRIVE file (.xodr) to drive, or a shipped map's "
-                                  "name (four_way, multilane, roundabout) (the `opendrive` extra)")
+                                  "name (four_way, four_way_lights, multilane, roundabout) (the `opendrive` extra)")
     route_points: tuple[float, float, float, float] | None = param(
         None, "urban/opendrive: the route's start x, y and goal x, y (the nearest lanes; None: the longest route)",
         "m")
@@ -123,9 +123,10 @@ class UrbanConfig(DrivingConfig):
                                     ge=0.0, le=1.0)
     operative: OperativeConfig = param(OperativeConfig(), "with `decisions`: the operative level's parameters "
                                        "(a dict of its keywords)")
-    junction_control: str = param("give_way", "the crossroad's control: give-way lines, stop signs on the minor road, "
-                                  "traffic lights, or one of the three drawn per episode (then the observation gains "
-                                  "`junction`)", choices=(*CONTROLS, "random"))
+    junction_control: str = param("give_way", "the junctions' control: give-way lines, stop signs on the minor road, "
+                                  "traffic lights, the map's own signs and lights (an OpenDRIVE file's signals; give "
+                                  "way where it has none), or one of the first three drawn per episode (then the "
+                                  "observation gains `junction`)", choices=(*KEYWORDS, "random"))
     signals: SignalTiming = param(SignalTiming(), "the traffic lights' cycle (a dict of its keywords)")
     collision_reward: float = param(COLLISION_REWARD, "reward of a collision, and of running a red light or a stop "
                                     "sign (study 002 §5.1.4: -2)", ge=-100.0, le=0.0)
@@ -178,7 +179,9 @@ class UrbanTask(DrivingTask):
         self._interval_names = [name for name, _, _ in intervals] + [FOLLOW]  # index -1: outside every interval
         self.junction_watch = JunctionWatch(route.route, self.route_starts, self.traffic.junctions,
                                             0.5 * self.params.length, DISTANCE_SCALE)
-        self.junction_observed = config.junction_control != "give_way"  # the observation's `junction`
+        # the observation's `junction`: under a control other than give-way (under "map": where the map has signs)
+        self.junction_observed = config.junction_control != "give_way" and (
+            config.junction_control != "map" or bool(route.road_map.entry_signs))
         self._lamps: np.ndarray | None = None  # [m] (E, 2) where the logs draw each entry's signal
         self.step_period = CONTROL_TIMESTEP  # [s] of one env step
         self._set_up_route_traffic()
@@ -573,4 +576,5 @@ merge = _register("merge", 60.0, "Join the main road from the right through the 
 concatenated_route = _register("concatenated", 400.0, "The whole route: roundabout, two-lane road, crossroad, "
                                "merge (Fig. 8).")
 opendrive = _register("opendrive", 300.0, "Drive a route across an OpenDRIVE map (opendrive=FILE.xodr or a shipped "
-                      "map's name), in traffic.", opendrive="four_way")
+                      "map's name), in traffic, under the file's stop signs and traffic lights.", opendrive="four_way",
+                      junction_control="map")

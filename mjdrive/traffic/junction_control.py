@@ -7,6 +7,8 @@ the minor-road group).
 - traffic lights: the main road green, amber, all red, then the minor road green, amber, all red (`SignalTiming`);
   red stops a vehicle at the line unless it is past it, amber unless it could not stop braking at AMBER_DECEL;
   within a green, the conflict zones' right of way still applies (left turns yield to oncoming traffic).
+- the map's own (`RoadMap.entry_signs`, e.g. an OpenDRIVE file's signals): a stop sign or traffic lights at the
+  entries the map puts them at, give-way at the others.
 
 The rules are vectorised over vehicles and entries (a junction has a handful of entries); traffic folds the stop
 gaps into its IDM like every other stop line and counts the violations of its own vehicles.
@@ -22,8 +24,11 @@ import numpy as np
 from mjdrive.config import Config, param
 from mjdrive.roads.roadmap import MAIN_ROAD, MINOR_ROAD, RoadMap
 
-CONTROLS = ("give_way", "stop", "lights")  # junction control kinds
+CONTROLS = ("give_way", "stop", "lights")  # junction control kinds (the ones "random" draws from)
 GIVE_WAY, STOP_SIGNS, LIGHTS = range(3)
+MAP = 3  # the map's own signs and lights at each entry (`RoadMap.entry_signs`)
+KEYWORDS = (*CONTROLS, "map")  # what `Traffic.set_junction_control` takes, indexed by the constants above
+SIGN_KINDS = {"stop": STOP_SIGNS, "lights": LIGHTS}  # `RoadMap.entry_signs` values
 GREEN, AMBER, RED, STOP_SIGN = range(4)  # what an entry shows now
 STATE_NAMES = ("green", "amber", "red", "stop")
 STOP_MARGIN = 1.0  # [m] the line: this far before the end of the entry lane (the give-way line's place)
@@ -54,7 +59,8 @@ class Junctions(NamedTuple):
     lane: np.ndarray  # (E,) entry lane ids
     group: np.ndarray  # (E,) MAIN_ROAD or MINOR_ROAD
     line: np.ndarray  # (E,) [m] the stop line along the lane (front bumper)
-    control: int  # GIVE_WAY, STOP_SIGNS or LIGHTS
+    sign: np.ndarray  # (E,) what the map puts at each entry: GIVE_WAY, STOP_SIGNS or LIGHTS (used under MAP)
+    control: int  # GIVE_WAY, STOP_SIGNS, LIGHTS or MAP
     timing: SignalTiming
     offset: float  # [s] where in its cycle the signal starts
 
@@ -63,28 +69,41 @@ class Junctions(NamedTuple):
         """The entries of `road_map`, under give-way."""
         rows = np.array(road_map.junction_entries, dtype=np.int64).reshape(-1, 2)
         lengths = np.array([road_map.lanes[int(i)].length for i in rows[:, 0]], dtype=float)
-        return cls(rows[:, 0].copy(), rows[:, 1].copy(), lengths - STOP_MARGIN, GIVE_WAY, SignalTiming(), 0.0)
+        sign = np.array([SIGN_KINDS.get(road_map.entry_signs.get(int(i), ""), GIVE_WAY) for i in rows[:, 0]],
+                        dtype=np.int64)
+        return cls(rows[:, 0].copy(), rows[:, 1].copy(), lengths - STOP_MARGIN, sign, GIVE_WAY, SignalTiming(), 0.0)
+
+    @property
+    def kinds(self) -> np.ndarray:
+        """(E,) the control in force at each entry: GIVE_WAY, STOP_SIGNS (the minor road's entries under stop
+        signs) or LIGHTS."""
+        if self.control == MAP:
+            return self.sign
+        if self.control == STOP_SIGNS:
+            return np.where(self.group == MINOR_ROAD, STOP_SIGNS, GIVE_WAY)
+        return np.full(len(self.lane), self.control, dtype=np.int64)
 
     @property
     def active(self) -> bool:
         """Whether anything beyond give-way is in force."""
-        return self.control != GIVE_WAY and len(self.lane) > 0
+        return self.control != GIVE_WAY and bool((self.kinds != GIVE_WAY).any())
 
 
 def entry_states(junctions: Junctions, time: float) -> np.ndarray:
     """(E,) what each entry shows at `time` [s]: GREEN (also under give-way), AMBER, RED or STOP_SIGN."""
     out = np.full(len(junctions.lane), GREEN, dtype=np.int64)
-    if junctions.control == STOP_SIGNS:
-        out[junctions.group == MINOR_ROAD] = STOP_SIGN
-    elif junctions.control == LIGHTS:
-        t = junctions.timing
-        u = (time + junctions.offset) % t.cycle  # [s] into the cycle
-        starts = {MAIN_ROAD: 0.0, MINOR_ROAD: t.green_main + t.amber + t.all_red}
-        greens = {MAIN_ROAD: t.green_main, MINOR_ROAD: t.green_minor}
-        for group in (MAIN_ROAD, MINOR_ROAD):
-            into = (u - starts[group]) % t.cycle  # [s] since this group's green began
-            state = GREEN if into < greens[group] else AMBER if into < greens[group] + t.amber else RED
-            out[junctions.group == group] = state
+    if junctions.control == GIVE_WAY:
+        return out
+    kinds = junctions.kinds
+    out[kinds == STOP_SIGNS] = STOP_SIGN
+    t = junctions.timing
+    u = (time + junctions.offset) % t.cycle  # [s] into the cycle
+    starts = {MAIN_ROAD: 0.0, MINOR_ROAD: t.green_main + t.amber + t.all_red}
+    greens = {MAIN_ROAD: t.green_main, MINOR_ROAD: t.green_minor}
+    for group in (MAIN_ROAD, MINOR_ROAD):
+        into = (u - starts[group]) % t.cycle  # [s] since this group's green began
+        state = GREEN if into < greens[group] else AMBER if into < greens[group] + t.amber else RED
+        out[(junctions.group == group) & (kinds == LIGHTS)] = state
     return out
 
 

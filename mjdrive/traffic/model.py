@@ -208,11 +208,11 @@ class Traffic:
         self.ego_halted = -1  # ... and the ego
 
     def set_junction_control(self, control: str, timing: jc.SignalTiming | None = None, offset: float = 0.0) -> None:
-        """The control of the map's junctions from now on: "give_way", "stop" (stop signs on the minor road) or
-        "lights" (`timing`, starting `offset` [s] into its cycle)."""
-        if control not in jc.CONTROLS:
-            raise ValueError(f"junction control {control!r}: must be one of {', '.join(jc.CONTROLS)}")
-        self.junctions = self.junctions._replace(control=jc.CONTROLS.index(control),
+        """The control of the map's junctions from now on: "give_way", "stop" (stop signs on the minor road),
+        "lights" (`timing`, starting `offset` [s] into its cycle) or "map" (the map's own, `RoadMap.entry_signs`)."""
+        if control not in jc.KEYWORDS:
+            raise ValueError(f"junction control {control!r}: must be one of {', '.join(jc.KEYWORDS)}")
+        self.junctions = self.junctions._replace(control=jc.KEYWORDS.index(control),
                                                  timing=timing or jc.SignalTiming(), offset=float(offset))
         self.entry_state = jc.entry_states(self.junctions, self.signal_time)
 
