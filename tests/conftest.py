@@ -47,3 +47,31 @@ def decision_agent_file():
         return str(path)
 
     return make
+
+
+@pytest.fixture
+def traffic_alone():
+    """A function: (traffic, seconds) -> (vehicles that drove through each junction entry (E,), substeps with an
+    overlap, whether each entry showed red at some substep (E,)) after running the traffic alone for `seconds`."""
+
+    def run(traffic, seconds: float):
+        import numpy as np
+
+        from mjdrive.traffic import junction_control as jc
+        from mjdrive.traffic import overlapping_pairs
+
+        entries = traffic.junctions.lane
+        passed, red, overlaps = np.zeros(len(entries), dtype=int), np.zeros(len(entries), dtype=bool), 0
+        before = traffic.vehicles.path[:, 0].copy()
+        for _ in range(int(round(seconds / traffic.config.substep))):
+            traffic.advance(traffic.config.substep)
+            red |= traffic.entry_state == jc.RED
+            present = traffic.present
+            overlaps += len(overlapping_pairs(traffic.poses()[present], traffic.half_size[present])) > 0
+            now = np.where(traffic.vehicles.active, traffic.vehicles.path[:, 0], -1)
+            passed += ((before[:, None] == entries[None, :]) & (now[:, None] != entries[None, :])
+                       & (now[:, None] >= 0)).sum(axis=0)
+            before = now
+        return passed, overlaps, red
+
+    return run

@@ -13,7 +13,7 @@ from mjdrive.envs import make_env
 from mjdrive.policies import make_policy
 from mjdrive.roads import concatenated
 from mjdrive.roads.roadmap import MAIN_ROAD, MINOR_ROAD
-from mjdrive.traffic import Traffic, overlapping_pairs
+from mjdrive.traffic import Traffic
 from mjdrive.traffic import junction_control as jc
 from mjdrive.traffic.urban import URBAN_CONFIG, urban_traffic
 
@@ -95,24 +95,14 @@ def test_a_red_light_holds_a_car_and_one_that_cannot_stop_is_counted():
 
 
 @pytest.mark.parametrize("control", ["stop", "lights"])
-def test_ten_minutes_of_controlled_traffic_without_violation_or_overlap(control):
+def test_ten_minutes_of_controlled_traffic_without_violation_or_overlap(control, traffic_alone):
     """Study 002's crossroad at its default traffic under stop signs or lights: nobody runs a red light or a stop
     sign, no two road users overlap, and every approach keeps flowing."""
     composed = concatenated(order=("crossroad",))
     traffic = urban_traffic(composed)
     traffic.set_junction_control(control, offset=5.0)
     traffic.reset(np.random.default_rng(1))
-    entries = traffic.junctions.lane
-    passes, overlaps = np.zeros(len(entries), dtype=int), 0
-    before = traffic.vehicles.path[:, 0].copy()
-    for _ in range(int(round(600.0 / SUBSTEP))):
-        traffic.advance(SUBSTEP)
-        present = traffic.present
-        overlaps += len(overlapping_pairs(traffic.poses()[present], traffic.half_size[present])) > 0
-        now = np.where(traffic.vehicles.active, traffic.vehicles.path[:, 0], -1)
-        for k, lane in enumerate(entries):
-            passes[k] += int(((before == lane) & (now != lane) & (now >= 0)).sum())
-        before = now
+    passes, overlaps, _ = traffic_alone(traffic, 600.0)
     assert overlaps == 0
     assert traffic.stats["red_light_violations"] == 0 and traffic.stats["stop_sign_violations"] == 0
     assert (passes >= 10).all(), passes  # vehicles through every approach
