@@ -23,8 +23,7 @@ SUBSTEP = URBAN_CONFIG.substep  # [s]
 def test_the_lights_follow_their_timing():
     """Main green, amber, all red, minor green, amber, all red; never both groups green or amber."""
     timing = jc.SignalTiming(green_main=10.0, green_minor=6.0, amber=2.0, all_red=1.0)
-    junctions = jc.Junctions.of(concatenated(order=("crossroad",)).road_map)._replace(control=jc.LIGHTS,
-                                                                                       timing=timing)
+    junctions = jc.Junctions.of(concatenated(order=("crossroad",)).road_map).controlled(jc.LIGHTS, timing)
     main, minor = junctions.group == MAIN_ROAD, junctions.group == MINOR_ROAD
     expected = [(0.5, jc.GREEN, jc.RED), (10.5, jc.AMBER, jc.RED), (12.5, jc.RED, jc.RED), (13.5, jc.RED, jc.GREEN),
                 (19.5, jc.RED, jc.AMBER), (21.5, jc.RED, jc.RED), (22.5, jc.GREEN, jc.RED)]
@@ -35,7 +34,7 @@ def test_the_lights_follow_their_timing():
     for t in np.arange(0.0, 44.0, 0.1):
         states = jc.entry_states(junctions, t)
         assert (states[main] == jc.RED).all() or (states[minor] == jc.RED).all()
-    stops = jc.entry_states(junctions._replace(control=jc.STOP_SIGNS), 3.0)
+    stops = jc.entry_states(junctions.controlled(jc.STOP_SIGNS), 3.0)
     assert (stops[minor] == jc.STOP_SIGN).all() and (stops[main] == jc.GREEN).all()
 
 

@@ -313,7 +313,7 @@ def test_the_lights_of_an_imported_map_hold_traffic_and_the_autopilot(drive_epis
     info = drive_episode(env, make_policy("autopilot", env), seed=2)
     assert info["success"] and not info["collision"] and info["violation"] is None, info
     traffic = env.unwrapped.task.traffic
-    assert traffic.junctions.active and (traffic.junctions.kinds == jc.LIGHTS).all()
+    assert traffic.junctions.active and (traffic.junctions.kind == jc.LIGHTS).all()
     passed, overlaps, red = traffic_alone(traffic, 180.0)
     assert red.all() and overlaps == 0 and traffic.stats["red_light_violations"] == 0
     assert (passed >= 3).all(), passed

@@ -255,7 +255,6 @@ def read_opendrive(path: str | os.PathLike, name: str | None = None) -> RoadMap:
     ids: dict[int, int] = {}
     by_section: dict[tuple[str, int], dict[int, int]] = {}
     junctions: dict[str, list[int]] = {}  # OpenDRIVE junction id -> its lanes
-    road_of: dict[int, str] = {}  # our lane -> its OpenDRIVE road id
     lane_of: dict[int, tuple[str, int, bool]] = {}  # our lane -> (road id, lane id, whether it drives along the road)
     for road, k, lane in lanes:
         centre = resample(flows[id(lane)], LANE_STEP)
@@ -270,7 +269,6 @@ def read_opendrive(path: str | os.PathLike, name: str | None = None) -> RoadMap:
         index = rm.add_lane(Lane(centre, width, marking, marking, _speed_limit(road.road_xml),
                                  f"road{road.id}/section{k}/lane{lane.id}", inside))
         ids[id(lane)] = index
-        road_of[index] = str(road.id)
         lane_of[index] = (str(road.id), int(lane.id), (lane.id < 0) == (road.road_xml.get("rule", "RHT") != "LHT"))
         by_section.setdefault((road.id, k), {})[lane.id] = index
         if inside:
@@ -292,6 +290,7 @@ def read_opendrive(path: str | os.PathLike, name: str | None = None) -> RoadMap:
                   for lane in (rm.lanes[i] for i in group)]
         rm.add_area(convex_hull(np.vstack(strips)))
     junction_of = {index: junction for junction, group in junctions.items() for index in group}
+    road_of = {index: road for index, (road, _, _) in lane_of.items()}  # our lane -> its OpenDRIVE road id
     _apply_ranks(rm, _road_ranks(tree.getroot()), road_of, junction_of)
     _apply_signals(rm, tree.getroot(), lane_of, junction_of)
     return rm.freeze()

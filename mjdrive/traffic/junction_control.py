@@ -61,6 +61,7 @@ class Junctions(NamedTuple):
     line: np.ndarray  # (E,) [m] the stop line along the lane (front bumper)
     sign: np.ndarray  # (E,) what the map puts at each entry: GIVE_WAY, STOP_SIGNS or LIGHTS (used under MAP)
     control: int  # GIVE_WAY, STOP_SIGNS, LIGHTS or MAP
+    kind: np.ndarray  # (E,) the control in force at each entry: GIVE_WAY, STOP_SIGNS or LIGHTS (`controlled`)
     timing: SignalTiming
     offset: float  # [s] where in its cycle the signal starts
 
@@ -71,22 +72,20 @@ class Junctions(NamedTuple):
         lengths = np.array([road_map.lanes[int(i)].length for i in rows[:, 0]], dtype=float)
         sign = np.array([SIGN_KINDS.get(road_map.entry_signs.get(int(i), ""), GIVE_WAY) for i in rows[:, 0]],
                         dtype=np.int64)
-        return cls(rows[:, 0].copy(), rows[:, 1].copy(), lengths - STOP_MARGIN, sign, GIVE_WAY, SignalTiming(), 0.0)
+        return cls(rows[:, 0].copy(), rows[:, 1].copy(), lengths - STOP_MARGIN, sign, GIVE_WAY,
+                   np.full(len(rows), GIVE_WAY, dtype=np.int64), SignalTiming(), 0.0)
 
-    @property
-    def kinds(self) -> np.ndarray:
-        """(E,) the control in force at each entry: GIVE_WAY, STOP_SIGNS (the minor road's entries under stop
-        signs) or LIGHTS."""
-        if self.control == MAP:
-            return self.sign
-        if self.control == STOP_SIGNS:
-            return np.where(self.group == MINOR_ROAD, STOP_SIGNS, GIVE_WAY)
-        return np.full(len(self.lane), self.control, dtype=np.int64)
+    def controlled(self, control: int, timing: SignalTiming | None = None, offset: float = 0.0) -> Junctions:
+        """These entries under `control` (GIVE_WAY, STOP_SIGNS: on the minor road's entries, LIGHTS, or MAP: the
+        map's own `sign`), the lights on `timing` starting `offset` [s] into its cycle."""
+        kind = (self.sign if control == MAP else np.where(self.group == MINOR_ROAD, STOP_SIGNS, GIVE_WAY)
+                if control == STOP_SIGNS else np.full(len(self.lane), control, dtype=np.int64))
+        return self._replace(control=control, kind=kind, timing=timing or SignalTiming(), offset=float(offset))
 
     @property
     def active(self) -> bool:
         """Whether anything beyond give-way is in force."""
-        return self.control != GIVE_WAY and bool((self.kinds != GIVE_WAY).any())
+        return self.control != GIVE_WAY and bool(self.kind.any())  # GIVE_WAY is 0
 
 
 def entry_states(junctions: Junctions, time: float) -> np.ndarray:
@@ -94,7 +93,7 @@ def entry_states(junctions: Junctions, time: float) -> np.ndarray:
     out = np.full(len(junctions.lane), GREEN, dtype=np.int64)
     if junctions.control == GIVE_WAY:
         return out
-    kinds = junctions.kinds
+    kinds = junctions.kind
     out[kinds == STOP_SIGNS] = STOP_SIGN
     t = junctions.timing
     u = (time + junctions.offset) % t.cycle  # [s] into the cycle

@@ -212,8 +212,7 @@ class Traffic:
         "lights" (`timing`, starting `offset` [s] into its cycle) or "map" (the map's own, `RoadMap.entry_signs`)."""
         if control not in jc.KEYWORDS:
             raise ValueError(f"junction control {control!r}: must be one of {', '.join(jc.KEYWORDS)}")
-        self.junctions = self.junctions._replace(control=jc.KEYWORDS.index(control),
-                                                 timing=timing or jc.SignalTiming(), offset=float(offset))
+        self.junctions = self.junctions.controlled(jc.KEYWORDS.index(control), timing, offset)
         self.entry_state = jc.entry_states(self.junctions, self.signal_time)
 
     def junction_state(self) -> tuple[np.ndarray, np.ndarray]:
